@@ -1,0 +1,190 @@
+"""Throughput of the one-scan k-level rollout next to raw batched ``mjx.step``.
+
+For each domain, batch size B and number of levels k, measured in the same process:
+- raw: a jitted ``lax.scan`` of ``vmap(mjx.step)`` over the same number of physics steps;
+- hier: ``jit_rollout`` of a k-level agent with 256x256 MLP policies at every level;
+- useful physics steps/s (physics steps that advanced a live episode), the useful-step
+  fraction, compile time (first call minus a warm call), and whether a later call
+  recompiled. Per (domain, B) the raw loop and every k are timed round-robin, so their
+  ratios are measured side by side; each figure is the median of ``--repeats`` calls.
+
+Prints a Markdown table and writes JSON (default ``benchmarks/results/rollout_<backend>.json``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import platform
+import statistics
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import tyro
+
+from mjx_emp._mjx import mjx
+from mjx_emp.envs import make_env
+from mjx_emp.hierarchy import Hierarchy, default_start, jit_init_rollout, jit_rollout
+from mjx_emp.networks import goal_policy
+
+# Paper-style per-level settings (Ant Field XL, k=3): n=[20,10,10], eps=[0.6,1.2,2.4].
+N_PER_LEVEL = (20, 10, 10)
+EPS_PER_LEVEL = (0.6, 1.2, 2.4)
+SUBGOAL_HALF_WIDTH = (2.0, 8.0)  # box of subgoals issued by levels 1 and 2
+
+
+@dataclasses.dataclass
+class Args:
+    """Rollout throughput benchmark."""
+
+    envs: tuple[str, ...] = ("point_mass", "ant_field")
+    batch_sizes: tuple[int, ...] = (64, 256, 1024)
+    levels: tuple[int, ...] = (1, 2, 3)
+    hidden: tuple[int, ...] = (256, 256)
+    primitive_steps: int = 0
+    """Primitive actions per timed call; 0 picks per domain (point mass 400, others 40)."""
+    repeats: int = 5
+    out: str = ""
+    """JSON output path; empty means benchmarks/results/rollout_<backend>.json."""
+
+
+def _timed(fn, *args):
+    start = time.perf_counter()
+    out = fn(*args)
+    jax.block_until_ready(out)
+    return time.perf_counter() - start, out
+
+
+def make_agent(env, k: int, hidden: tuple[int, ...], key: jax.Array):
+    """k random-init MLP policies (level 0 primitive, upper levels subgoal boxes) and their params."""
+    policies, params = [], []
+    for level in range(k):
+        if level == 0:
+            policy, init = goal_policy(env.obs_size, env.goal_size, env.action_size, hidden)
+        else:
+            policy, init = goal_policy(
+                env.obs_size, env.goal_size, env.goal_size, hidden,
+                half_width=SUBGOAL_HALF_WIDTH[level - 1],
+            )
+        policies.append(policy)
+        params.append(init(jax.random.fold_in(key, level)))
+    h = Hierarchy(env, tuple(policies), n=N_PER_LEVEL[:k], eps=EPS_PER_LEVEL[:k])
+    return h, tuple(params)
+
+
+def make_raw(env, batch: int, physics_steps: int):
+    """Jitted raw batched ``mjx.step`` loop with a fixed random control per environment."""
+
+    @jax.jit
+    def raw(data, ctrl):
+        data = data.replace(ctrl=ctrl)
+        step = jax.vmap(lambda d: mjx.step(env.model, d))
+        return jax.lax.fori_loop(0, physics_steps, lambda _, d: step(d), data)
+
+    states = jax.vmap(env.reset)(jax.random.split(jax.random.key(0), batch))
+    ctrl = jax.random.uniform(jax.random.key(1), (batch, env.action_size), minval=-1, maxval=1)
+    return raw, (states.data, ctrl)
+
+
+def bench_group(env, batch: int, steps: int, args: Args) -> list[dict]:
+    """Raw mjx.step and every k for one (env, B), timed round-robin so ratios are side by side."""
+    physics = steps * env.action_repeat
+    raw, raw_args = make_raw(env, batch, physics)
+    start = default_start(env, goal_half_width=2.0)
+    first = {"raw": _timed(raw, *raw_args)[0]}
+    agents = {}
+    for k in args.levels:
+        h, params = make_agent(env, k, args.hidden, jax.random.key(k))
+        state = jit_init_rollout(h, params, start, None, jax.random.key(2), batch)
+        first[k], (state, _, _) = _timed(jit_rollout, h, params, start, None, state, steps)
+        agents[k] = [h, params, state]
+    compiled_programs = jit_rollout._cache_size()
+
+    times = {name: [] for name in first}
+    useful = {k: 0 for k in agents}
+    for _ in range(args.repeats):
+        times["raw"].append(_timed(raw, *raw_args)[0])
+        for k, agent in agents.items():
+            h, params, state = agent
+            dt, (agent[2], _, stats) = _timed(jit_rollout, h, params, start, None, state, steps)
+            times[k].append(dt)
+            useful[k] += int(stats.useful_steps)
+    recompiled = jit_rollout._cache_size() > compiled_programs
+
+    t_raw = statistics.median(times["raw"])
+    raw_sps = batch * physics / t_raw
+    rows = []
+    for k, (h, _, _) in agents.items():
+        t_hier = statistics.median(times[k])
+        useful_fraction = useful[k] / (args.repeats * steps * batch)
+        hier_sps = useful_fraction * batch * physics / t_hier
+        rows.append({
+            "env": env.name,
+            "batch": batch,
+            "k": k,
+            "n": list(h.n),
+            "primitive_steps_per_call": steps,
+            "physics_steps_per_call": batch * physics,
+            "raw_physics_steps_per_s": raw_sps,
+            "hier_useful_physics_steps_per_s": hier_sps,
+            "hier_over_raw": hier_sps / raw_sps,
+            "useful_fraction": useful_fraction,
+            "compile_s_raw": first["raw"] - t_raw,
+            "compile_s_hier": first[k] - t_hier,
+            "recompiled_on_later_calls": recompiled,
+        })
+    return rows
+
+
+def markdown(rows: list[dict]) -> str:
+    """The results as a Markdown table, with hier/k=1 ratios per (env, B)."""
+    k1 = {(r["env"], r["batch"]): r["hier_useful_physics_steps_per_s"] for r in rows if r["k"] == 1}
+    lines = [
+        "| env | B | k | raw mjx.step /s | hier useful /s | hier/raw | hier/k=1 | useful frac | compile s |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        base = k1.get((r["env"], r["batch"]))
+        vs_k1 = f"{r['hier_useful_physics_steps_per_s'] / base:.2f}" if base else "-"
+        lines.append(
+            f"| {r['env']} | {r['batch']} | {r['k']} | {r['raw_physics_steps_per_s']:,.0f} | "
+            f"{r['hier_useful_physics_steps_per_s']:,.0f} | {r['hier_over_raw']:.2f} | {vs_k1} | "
+            f"{r['useful_fraction']:.3f} | {r['compile_s_hier']:.1f} |"
+        )
+    return "\n".join(lines)
+
+
+def main(args: Args) -> None:
+    backend = jax.default_backend()
+    rows = []
+    for name in args.envs:
+        env = make_env(name)
+        steps = args.primitive_steps or (400 if name == "point_mass" else 40)
+        for batch in args.batch_sizes:
+            for row in bench_group(env, batch, steps, args):
+                rows.append(row)
+                print(
+                    f"{name} B={batch} k={row['k']}: raw {row['raw_physics_steps_per_s']:,.0f}/s, "
+                    f"hier {row['hier_useful_physics_steps_per_s']:,.0f}/s "
+                    f"({row['hier_over_raw']:.2f}x), useful {row['useful_fraction']:.3f}, "
+                    f"compile {row['compile_s_hier']:.1f}s",
+                    flush=True,
+                )
+    table = markdown(rows)
+    print(table)
+    out = Path(args.out or Path(__file__).parent / "results" / f"rollout_{backend}.json")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    meta = {
+        "backend": backend,
+        "devices": [str(d) for d in jax.devices()],
+        "machine": platform.machine(),
+        "jax": jax.__version__,
+    }
+    out.write_text(json.dumps({"meta": meta, "rows": rows, "table": table}, indent=1))
+    print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+    main(tyro.cli(Args))

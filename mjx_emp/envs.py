@@ -1,0 +1,232 @@
+"""Functional MuJoCo MJX environments for skill learning.
+
+Every function here is pure and works on one environment; ``jax.vmap`` batches it.
+An environment is a frozen description (model, action repeat, goal coordinates,
+optional cage) and an :class:`EnvState` pytree. The goal space of every domain is
+the torso position, read straight from ``qpos``: h(s) = (x, y) for point mass and
+Ant, h(s) = x for Half Cheetah.
+
+Resets only rewrite the integration state (qpos, qvel, warm start, controls, mocap
+poses). Derived quantities such as ``xpos`` or contacts still describe the home pose
+until the next :meth:`Env.step`, which recomputes them; nothing here reads them, and
+this keeps a reset free of a full ``mjx.forward``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+from flax import struct
+
+from mjx_emp._mjx import mjx
+
+MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
+
+
+@struct.dataclass
+class EnvState:
+    """State of one environment.
+
+    ``key`` drives the reset that follows a non-finite physics state;
+    ``nan_resets`` counts those resets over the environment's life.
+    """
+
+    data: mjx.Data
+    key: jax.Array
+    nan_resets: jax.Array
+
+
+@dataclasses.dataclass(frozen=True)
+class Cage:
+    """Walls on mocap bodies plus a floor button that opens them.
+
+    The button is an axis-aligned box in goal space; when h(s) is inside it the walls
+    move ``open_scale`` times further from the origin, which for plane walls means
+    out of reach for good.
+    """
+
+    wall_mocap_ids: tuple[int, ...]
+    button_center: tuple[float, ...]
+    button_half_size: tuple[float, ...]
+    open_scale: float = 1000.0
+
+
+@dataclasses.dataclass(frozen=True)
+class DomainSpec:
+    """What distinguishes one domain from another: its MJCF file and its knobs."""
+
+    xml: str
+    action_repeat: int
+    goal_qpos: tuple[int, ...]
+    caged: bool = False
+
+
+# Control interval = timestep * action_repeat = 0.1 s in every domain. The paper's
+# Brax agents also used a coarse control step; at 0.1 s a primitive action moves the
+# point mass up to 0.2 (terminal speed 2 m/s) and lets a walking Ant or a running
+# Half Cheetah cover 0.1-0.3 per action, so an n=20 skill spans a few metres.
+DOMAINS: dict[str, DomainSpec] = {
+    "point_mass": DomainSpec("point_mass.xml", action_repeat=5, goal_qpos=(0, 1)),
+    "ant_field": DomainSpec("ant_field.xml", action_repeat=10, goal_qpos=(0, 1)),
+    "ant_cage": DomainSpec("ant_cage.xml", action_repeat=10, goal_qpos=(0, 1), caged=True),
+    "half_cheetah_field": DomainSpec("half_cheetah_field.xml", action_repeat=10, goal_qpos=(0,)),
+    "half_cheetah_cage": DomainSpec(
+        "half_cheetah_cage.xml", action_repeat=10, goal_qpos=(0,), caged=True
+    ),
+}
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Env:
+    """A functional MJX environment; hashable by identity so it can be a static jit argument."""
+
+    name: str
+    mj_model: mujoco.MjModel
+    model: mjx.Model
+    template: mjx.Data
+    home_qpos: np.ndarray
+    home_mocap_pos: np.ndarray
+    action_repeat: int
+    goal_qpos: tuple[int, ...]
+    cage: Cage | None
+
+    @property
+    def action_size(self) -> int:
+        return self.mj_model.nu
+
+    @property
+    def goal_size(self) -> int:
+        return len(self.goal_qpos)
+
+    @property
+    def obs_size(self) -> int:
+        return self.mj_model.nq + self.mj_model.nv + (1 if self.cage else 0)
+
+    @property
+    def control_dt(self) -> float:
+        """Seconds of simulated time per primitive action."""
+        return float(self.mj_model.opt.timestep) * self.action_repeat
+
+    def home_goal(self) -> jax.Array:
+        """Torso position of the home pose (the default start)."""
+        return jnp.asarray(self.home_qpos[list(self.goal_qpos)])
+
+    def reset(self, key: jax.Array) -> EnvState:
+        """Start state of an episode: the home pose at its home position, at rest."""
+        return self.reset_to(key, self.home_goal())
+
+    def reset_to(self, key: jax.Array, torso_pos: jax.Array) -> EnvState:
+        """Home joint pose and zero velocity with the torso moved to ``torso_pos``.
+
+        Phase-1 training starts skills from arbitrary torso positions, so this is the
+        reset the algorithm needs, not just a convenience.
+        """
+        torso_pos = jnp.asarray(torso_pos, dtype=self.template.qpos.dtype)
+        qpos = jnp.asarray(self.home_qpos).at[jnp.asarray(self.goal_qpos)].set(torso_pos)
+        data = self.template.replace(qpos=qpos)
+        return EnvState(data=data, key=key, nan_resets=jnp.zeros((), jnp.int32))
+
+    def step(self, state: EnvState, action: jax.Array) -> EnvState:
+        """Apply one primitive action (clipped to [-1, 1]) for ``action_repeat`` physics steps.
+
+        A non-finite state after the physics resets the environment to its home pose
+        and increments ``nan_resets``, so one bad batch member never poisons the rest.
+        """
+        data = state.data.replace(ctrl=jnp.clip(action, -1.0, 1.0).astype(state.data.ctrl.dtype))
+        data = jax.lax.fori_loop(
+            0, self.action_repeat, lambda _, d: mjx.step(self.model, d), data
+        )
+        if self.cage is not None:
+            data = self._press_button(data)
+        finite = jnp.isfinite(data.qpos).all() & jnp.isfinite(data.qvel).all()
+        key, reset_key = jax.random.split(state.key)
+        data = tree_where(finite, data, self.reset(reset_key).data)
+        return EnvState(data=data, key=key, nan_resets=state.nan_resets + (~finite).astype(jnp.int32))
+
+    def goal_of(self, state: EnvState) -> jax.Array:
+        """h(s): the torso coordinates that make up the goal space."""
+        return state.data.qpos[jnp.asarray(self.goal_qpos)]
+
+    def observe(self, state: EnvState) -> jax.Array:
+        """Policy input: qpos, qvel and, in cages, whether the cage is open."""
+        parts = [state.data.qpos, state.data.qvel]
+        if self.cage is not None:
+            parts.append(self.cage_open(state)[None].astype(state.data.qpos.dtype))
+        return jnp.concatenate(parts)
+
+    def goal_of_obs(self, obs: jax.Array) -> jax.Array:
+        """h(s) read back from an observation (the first entries of obs are qpos)."""
+        return obs[..., jnp.asarray(self.goal_qpos)]
+
+    def cage_open(self, state: EnvState) -> jax.Array:
+        """True once the button has been pressed in this episode (always False without a cage)."""
+        if self.cage is None:
+            return jnp.zeros((), bool)
+        return jnp.any(state.data.mocap_pos != jnp.asarray(self.home_mocap_pos))
+
+    def _press_button(self, data: mjx.Data) -> mjx.Data:
+        cage = self.cage
+        pos = data.qpos[jnp.asarray(self.goal_qpos)]
+        offset = jnp.abs(pos - jnp.asarray(cage.button_center))
+        pressed = jnp.all(offset <= jnp.asarray(cage.button_half_size))
+        home = jnp.asarray(self.home_mocap_pos)
+        ids = jnp.asarray(cage.wall_mocap_ids)
+        opened = data.mocap_pos.at[ids].set(home[ids] * cage.open_scale)
+        return data.replace(mocap_pos=jnp.where(pressed, opened, data.mocap_pos))
+
+
+def tree_where(condition: jax.Array, on_true, on_false):
+    """Select between two pytrees of equal structure, broadcasting ``condition`` over leading axes."""
+
+    def pick(a, b):
+        c = jnp.reshape(condition, condition.shape + (1,) * (a.ndim - condition.ndim))
+        return jnp.where(c, a, b)
+
+    return jax.tree.map(pick, on_true, on_false)
+
+
+def _home_qpos(m: mujoco.MjModel) -> np.ndarray:
+    key_id = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_KEY, "home")
+    return np.array(m.key_qpos[key_id] if key_id >= 0 else m.qpos0, dtype=np.float32)
+
+
+def _make_cage(m: mujoco.MjModel, spec: DomainSpec) -> Cage:
+    wall_bodies = [b for b in range(m.nbody) if (m.body(b).name or "").startswith("wall_")]
+    button = m.site("button")
+    dims = spec.goal_qpos
+    return Cage(
+        wall_mocap_ids=tuple(int(m.body_mocapid[b]) for b in wall_bodies),
+        button_center=tuple(float(button.pos[i]) for i in range(len(dims))),
+        button_half_size=tuple(float(button.size[i]) for i in range(len(dims))),
+    )
+
+
+@functools.cache
+def make_env(name: str) -> Env:
+    """Build a domain by name (see :data:`DOMAINS`); cached so every caller shares one Env."""
+    if name not in DOMAINS:
+        raise ValueError(f"env name {name!r} is unknown; allowed values: {sorted(DOMAINS)}")
+    spec = DOMAINS[name]
+    m = mujoco.MjModel.from_xml_path(str(MODELS_DIR / spec.xml))
+    d = mujoco.MjData(m)
+    d.qpos[:] = _home_qpos(m)
+    mujoco.mj_forward(m, d)
+    model = mjx.put_model(m, impl="jax")
+    template = mjx.put_data(m, d, impl="jax")
+    return Env(
+        name=name,
+        mj_model=m,
+        model=model,
+        template=template,
+        home_qpos=_home_qpos(m),
+        home_mocap_pos=np.array(d.mocap_pos, dtype=np.float32),
+        action_repeat=spec.action_repeat,
+        goal_qpos=spec.goal_qpos,
+        cage=_make_cage(m, spec) if spec.caged else None,
+    )

@@ -1,0 +1,353 @@
+"""The k-level hierarchical rollout as one ``lax.scan`` over primitive steps.
+
+Level 0 picks a primitive action every step. A level i > 0 acts by handing a subgoal
+to level i-1, which then has at most ``n[i-1]`` actions and stops early once h(s) is
+within ``eps[i-1]`` of the subgoal. Instead of nesting one scan per level (which idles
+every environment whose lower level finished early), each environment carries a small
+controller state: per level its current goal, how many actions it has taken toward it,
+and the state and action with which its current action was issued. One scan step is:
+
+1. level 0 acts, physics advances one primitive action;
+2. bottom-up, every level whose action just completed counts it and checks its goal;
+   a level finishes when it reaches its goal, runs out of actions, or physics broke;
+3. an environment whose root level finished starts a new episode at once;
+4. top-down, every level whose child finished issues the child's next subgoal.
+
+So each physics step computed advances a live episode, and the next subgoal is in
+place before the next physics step. Upper-level policies are evaluated only for the
+environments that need a decision: those rows are gathered into the smallest of a few
+compiled batch sizes that holds them (the full batch when most need one).
+
+Goals are absolute points in goal space; a level i > 0 policy returns the subgoal
+relative to the current h(s), as the paper's policies output a point of the child's
+goal-space box around the current state.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from mjx_emp.envs import Env, EnvState, tree_where
+
+Params = Any
+# (params, obs, goal, key) -> action, for ONE environment. Level 0 returns a primitive
+# action in [-1, 1]^nu; level i > 0 returns a subgoal relative to h(s) (goal-space size).
+LevelPolicy = Callable[[Params, jax.Array, jax.Array, jax.Array], jax.Array]
+# (start_params, key) -> (env state, root goal), for ONE environment: where and with which
+# goal a new root-level episode begins (e.g. a start-state buffer and a goal-space sample).
+StartFn = Callable[[Any, jax.Array], tuple[EnvState, jax.Array]]
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Hierarchy:
+    """A k-level agent's static structure: env, one policy per level, n and eps per level."""
+
+    env: Env
+    policies: tuple[LevelPolicy, ...]
+    n: tuple[int, ...]
+    eps: tuple[float, ...]
+
+    def __post_init__(self):
+        k = len(self.policies)
+        if k < 1:
+            raise ValueError("policies: need at least one level (k >= 1)")
+        if len(self.n) != k or len(self.eps) != k:
+            raise ValueError(f"n and eps must have one entry per level (k={k}); got n={self.n}, eps={self.eps}")
+        if any(n_i < 1 for n_i in self.n):
+            raise ValueError(f"n: every entry must be >= 1; got {self.n}")
+        if any(not e > 0 for e in self.eps):
+            raise ValueError(f"eps: every entry must be > 0; got {self.eps}")
+
+    @property
+    def k(self) -> int:
+        return len(self.policies)
+
+
+@struct.dataclass
+class Transition:
+    """One level's experience, stacked as [T, B, ...]; rows with ``valid`` False are padding.
+
+    ``reached``: h(next_obs) within eps of ``goal``. ``final``: this action ended the
+    level's pursuit of ``goal`` (reached, out of actions, or a physics reset).
+    """
+
+    obs: jax.Array
+    goal: jax.Array
+    action: jax.Array
+    next_obs: jax.Array
+    reached: jax.Array
+    final: jax.Array
+    valid: jax.Array
+
+
+@struct.dataclass
+class RolloutState:
+    """Batched environments plus the per-level controller state carried between steps.
+
+    Tuples are indexed by level 0..root. ``issued_obs[i]``/``issued_action[i]`` hold the
+    observation and action with which level i's current action began (for level 0 they
+    are refreshed every step).
+    """
+
+    env: EnvState
+    goals: tuple[jax.Array, ...]
+    counts: tuple[jax.Array, ...]
+    issued_obs: tuple[jax.Array, ...]
+    issued_action: tuple[jax.Array, ...]
+    key: jax.Array
+
+
+@struct.dataclass
+class RolloutStats:
+    """Per-call totals: physics work done and how much of it served a live episode."""
+
+    primitive_steps: jax.Array
+    useful_steps: jax.Array
+    episodes_finished: jax.Array
+    nan_resets: jax.Array
+    decisions: tuple[jax.Array, ...]
+
+
+def default_start(env: Env, goal_half_width: float) -> StartFn:
+    """Start at the home pose with a root goal uniform in a box of half-width around it."""
+
+    def start(_: Any, key: jax.Array) -> tuple[EnvState, jax.Array]:
+        reset_key, goal_key = jax.random.split(key)
+        state = env.reset(reset_key)
+        offset = jax.random.uniform(
+            goal_key, (env.goal_size,), minval=-goal_half_width, maxval=goal_half_width
+        )
+        return state, env.goal_of(state) + offset
+
+    return start
+
+
+def _level_keys(key: jax.Array, batch: int, levels: int) -> jax.Array:
+    """Independent keys per (level, env): [levels, B]. Env j's keys depend only on j."""
+    return jax.vmap(lambda l: jax.random.split(jax.random.fold_in(key, l), batch))(
+        jnp.arange(levels)
+    )
+
+
+def decision_buckets(batch: int, smallest: int = 8) -> tuple[int, ...]:
+    """Row counts the gathered decision path is compiled for: powers of two up to the batch."""
+    sizes = []
+    size = min(smallest, batch)
+    while size < batch:
+        sizes.append(size)
+        size *= 2
+    return tuple(sizes) + (batch,)
+
+
+def _decide(
+    policy: LevelPolicy,
+    params: Params,
+    obs: jax.Array,
+    goals: jax.Array,
+    keys: jax.Array,
+    need: jax.Array,
+    old: jax.Array,
+) -> tuple[jax.Array, jax.Array]:
+    """New actions where ``need``, old ones elsewhere.
+
+    Only the rows that need a decision are evaluated: they are gathered into the
+    smallest compiled bucket (a power of two) that holds them all, so the policy
+    cost tracks the number of decisions, not the batch size, and no row is ever
+    dropped or delayed.
+    """
+    batch = need.shape[0]
+    act = jax.vmap(policy, in_axes=(None, 0, 0, 0))
+    sizes = decision_buckets(batch)
+
+    def gathered(size):
+        def run(_):
+            rows = jnp.nonzero(need, size=size, fill_value=batch)[0]
+            safe = jnp.minimum(rows, batch - 1)
+            new = act(params, obs[safe], goals[safe], keys[safe])
+            return old.at[rows].set(new, mode="drop")
+
+        return run
+
+    def full(_):
+        return jnp.where(need[:, None], act(params, obs, goals, keys), old)
+
+    count = need.sum()
+    branch = jnp.searchsorted(jnp.asarray(sizes), count)  # first bucket with size >= count
+    return jax.lax.switch(branch, [gathered(s) for s in sizes[:-1]] + [full], None), count
+
+
+def _issue_subgoals(
+    h: Hierarchy,
+    params: tuple[Params, ...],
+    root: int,
+    env_state: EnvState,
+    goals: list,
+    issued_obs: list,
+    issued_action: list,
+    finished: list,
+    keys: jax.Array,
+) -> list:
+    """Top-down: each level i whose child finished gives the child its next subgoal."""
+    env = h.env
+    obs = jax.vmap(env.observe)(env_state)
+    pos = jax.vmap(env.goal_of)(env_state)
+    decisions = [jnp.zeros((), jnp.int32) for _ in range(root + 1)]
+    for i in range(root, 0, -1):
+        need = finished[i - 1]
+        z, decisions[i] = _decide(
+            h.policies[i], params[i], obs, goals[i], keys[i], need, issued_action[i]
+        )
+        issued_action[i] = z
+        issued_obs[i] = jnp.where(need[:, None], obs, issued_obs[i])
+        goals[i - 1] = jnp.where(need[:, None], pos + z, goals[i - 1])
+    return decisions
+
+
+def init_rollout(
+    h: Hierarchy,
+    params: tuple[Params, ...],
+    start: StartFn,
+    start_params: Any,
+    key: jax.Array,
+    batch_size: int,
+    root: int | None = None,
+) -> RolloutState:
+    """Start ``batch_size`` episodes of the agent rooted at level ``root`` (default: the top)."""
+    root = h.k - 1 if root is None else root
+    _check_root(h, root)
+    env = h.env
+    key, start_key, level_key = jax.random.split(key, 3)
+    env_state, root_goal = jax.vmap(start, in_axes=(None, 0))(
+        start_params, jax.random.split(start_key, batch_size)
+    )
+    obs = jax.vmap(env.observe)(env_state)
+    goals = [jnp.zeros((batch_size, env.goal_size), obs.dtype) for _ in range(root)] + [root_goal]
+    issued_obs = [obs for _ in range(root + 1)]
+    issued_action = [jnp.zeros((batch_size, env.action_size), obs.dtype)] + [
+        jnp.zeros((batch_size, env.goal_size), obs.dtype) for _ in range(root)
+    ]
+    everyone = [jnp.ones(batch_size, bool) for _ in range(root + 1)]
+    _issue_subgoals(
+        h, params, root, env_state, goals, issued_obs, issued_action, everyone,
+        _level_keys(level_key, batch_size, root + 1),
+    )
+    return RolloutState(
+        env=env_state,
+        goals=tuple(goals),
+        counts=tuple(jnp.zeros(batch_size, jnp.int32) for _ in range(root + 1)),
+        issued_obs=tuple(issued_obs),
+        issued_action=tuple(issued_action),
+        key=key,
+    )
+
+
+def _check_root(h: Hierarchy, root: int) -> None:
+    if not 0 <= root < h.k:
+        raise ValueError(f"root must be a level in 0..{h.k - 1}; got {root}")
+
+
+def _scan_step(h, params, start, start_params, root, state: RolloutState, _):
+    env = h.env
+    batch = state.counts[0].shape[0]
+    key, policy_key, start_key = jax.random.split(state.key, 3)
+    keys = _level_keys(policy_key, batch, root + 1)
+    goals, counts = list(state.goals), list(state.counts)
+    issued_obs, issued_action = list(state.issued_obs), list(state.issued_action)
+
+    # 1. Level 0 acts; physics advances one primitive action.
+    obs = jax.vmap(env.observe)(state.env)
+    action = jax.vmap(h.policies[0], in_axes=(None, 0, 0, 0))(params[0], obs, goals[0], keys[0])
+    issued_obs[0], issued_action[0] = obs, action
+    env_state = jax.vmap(env.step)(state.env, action)
+    broke = env_state.nan_resets > state.env.nan_resets
+    next_obs = jax.vmap(env.observe)(env_state)
+    pos = jax.vmap(env.goal_of)(env_state)
+
+    # 2. Bottom-up: levels whose action completed count it and check their goal.
+    transitions, finished = [], []
+    completed = jnp.ones(batch, bool)
+    for i in range(root + 1):
+        count = counts[i] + completed.astype(jnp.int32)
+        reached = jnp.linalg.norm(pos - goals[i], axis=-1) < h.eps[i]
+        done = completed & (reached | (count >= h.n[i]) | broke)
+        transitions.append(
+            Transition(
+                obs=issued_obs[i], goal=goals[i], action=issued_action[i], next_obs=next_obs,
+                reached=completed & reached, final=done, valid=completed & ~broke,
+            )
+        )
+        counts[i] = jnp.where(done, 0, count)
+        finished.append(done)
+        completed = done
+    episode_over = finished[root]
+
+    # 3. Environments whose root episode ended start a new one in the same step.
+    def restart(args):
+        env_state, root_goal = args
+        fresh, fresh_goal = jax.vmap(start, in_axes=(None, 0))(
+            start_params, jax.random.split(start_key, batch)
+        )
+        fresh = fresh.replace(nan_resets=env_state.nan_resets)
+        return (
+            tree_where(episode_over, fresh, env_state),
+            jnp.where(episode_over[:, None], fresh_goal, root_goal),
+        )
+
+    env_state, goals[root] = jax.lax.cond(
+        episode_over.any(), restart, lambda args: args, (env_state, goals[root])
+    )
+
+    # 4. Top-down: parents of finished levels issue the next subgoals.
+    decisions = _issue_subgoals(
+        h, params, root, env_state, goals, issued_obs, issued_action, finished, keys
+    )
+    new_state = RolloutState(
+        env=env_state, goals=tuple(goals), counts=tuple(counts),
+        issued_obs=tuple(issued_obs), issued_action=tuple(issued_action), key=key,
+    )
+    per_step = (tuple(transitions), episode_over.sum(), tuple(decisions))
+    return new_state, per_step
+
+
+def rollout(
+    h: Hierarchy,
+    params: tuple[Params, ...],
+    start: StartFn,
+    start_params: Any,
+    state: RolloutState,
+    num_steps: int,
+) -> tuple[RolloutState, tuple[Transition, ...], RolloutStats]:
+    """Advance every environment ``num_steps`` primitive actions; return per-level transitions.
+
+    The root level is the one ``state`` was initialised with. Jit with ``h``, ``start``
+    and ``num_steps`` static (see :func:`jit_rollout`); everything else may change between
+    calls without recompiling.
+    """
+    root = len(state.counts) - 1
+    _check_root(h, root)
+    nan_before = state.env.nan_resets.sum()
+
+    def body(carry, x):
+        return _scan_step(h, params, start, start_params, root, carry, x)
+
+    state, (transitions, finished, decisions) = jax.lax.scan(body, state, None, length=num_steps)
+    batch = state.counts[0].shape[0]
+    steps = jnp.asarray(num_steps * batch, jnp.int32)
+    stats = RolloutStats(
+        primitive_steps=steps,
+        useful_steps=transitions[0].valid.sum(dtype=jnp.int32),
+        episodes_finished=finished.sum(dtype=jnp.int32),
+        nan_resets=state.env.nan_resets.sum() - nan_before,
+        decisions=tuple(d.sum(dtype=jnp.int32) for d in decisions),
+    )
+    return state, transitions, stats
+
+
+jit_init_rollout = jax.jit(init_rollout, static_argnames=("h", "start", "batch_size", "root"))
+jit_rollout = jax.jit(rollout, static_argnames=("h", "start", "num_steps"))

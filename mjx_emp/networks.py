@@ -1,0 +1,56 @@
+"""Neural networks for the goal-conditioned policies.
+
+A deterministic goal-conditioned policy maps (observation, goal) through an MLP and a
+tanh, then scales and shifts the result into its action box: the primitive action
+bounds at level 0, the child's goal-space box (half-widths and shift) above it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+
+from mjx_emp.hierarchy import LevelPolicy, Params
+
+
+class MLP(nn.Module):
+    """Plain ReLU MLP with a linear output layer."""
+
+    hidden: Sequence[int]
+    out: int
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        for width in self.hidden:
+            x = nn.relu(nn.Dense(width)(x))
+        return nn.Dense(self.out)(x)
+
+
+def goal_policy(
+    obs_size: int,
+    goal_size: int,
+    action_size: int,
+    hidden: Sequence[int] = (256, 256),
+    half_width: float | jax.Array = 1.0,
+    shift: float | jax.Array = 0.0,
+) -> tuple[LevelPolicy, callable]:
+    """A fixed-box deterministic goal-conditioned policy and its initialiser.
+
+    Returns ``(policy, init)`` with ``policy(params, obs, goal, key) -> action`` in
+    ``shift ± half_width`` and ``init(key) -> params``. The goal enters as its offset
+    from nothing in particular: the MLP sees (obs, goal) and learns the relation.
+    """
+    net = MLP(tuple(hidden), action_size)
+
+    def policy(params: Params, obs: jax.Array, goal: jax.Array, key: jax.Array) -> jax.Array:
+        del key  # deterministic
+        raw = net.apply(params, jnp.concatenate([obs, goal], axis=-1))
+        return jnp.tanh(raw) * half_width + shift
+
+    def init(key: jax.Array) -> Params:
+        return net.init(key, jnp.zeros(obs_size + goal_size))
+
+    return policy, init

@@ -1,0 +1,116 @@
+"""Functional env API: resets, goal map, NaN guard, cages."""
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+import pytest
+
+from mjx_emp.envs import DOMAINS, make_env
+
+
+def torso_position(env, state) -> np.ndarray:
+    """Torso body position computed by C MuJoCo from the state's qpos (independent of goal_of)."""
+    d = mujoco.MjData(env.mj_model)
+    d.qpos[:] = np.asarray(state.data.qpos)
+    mujoco.mj_forward(env.mj_model, d)
+    return d.body("torso").xpos.copy()
+
+
+@pytest.mark.parametrize("name", sorted(DOMAINS))
+def test_reset_to_places_torso_and_goal_of_matches(name):
+    env = make_env(name)
+    target = jnp.asarray([1.5, -2.25][: env.goal_size])
+    state = jax.jit(env.reset_to)(jax.random.key(0), target)
+    np.testing.assert_allclose(env.goal_of(state), target, atol=1e-6)
+    np.testing.assert_allclose(torso_position(env, state)[: env.goal_size], target, atol=1e-6)
+    np.testing.assert_array_equal(state.data.qvel, 0.0)
+    joints = np.asarray(state.data.qpos).copy()
+    joints[list(env.goal_qpos)] = env.home_qpos[list(env.goal_qpos)]
+    np.testing.assert_allclose(joints, env.home_qpos, atol=1e-7)  # every other coordinate is home
+
+
+@pytest.mark.parametrize("name", ["point_mass", "ant_field", "half_cheetah_field"])
+def test_goal_of_tracks_torso_while_moving(name):
+    env = make_env(name)
+    step = jax.jit(env.step)
+    state = env.reset(jax.random.key(1))
+    key = jax.random.key(2)
+    for _ in range(5):
+        key, sub = jax.random.split(key)
+        state = step(state, jax.random.uniform(sub, (env.action_size,), minval=-1, maxval=1))
+    assert int(state.nan_resets) == 0
+    moved = np.linalg.norm(np.asarray(env.goal_of(state)) - np.asarray(env.home_goal()))
+    assert moved > 1e-4, "random actions should move the torso"
+    np.testing.assert_allclose(env.goal_of(state), torso_position(env, state)[: env.goal_size], atol=1e-5)
+    obs = env.observe(state)
+    assert obs.shape == (env.obs_size,)
+    np.testing.assert_array_equal(env.goal_of_obs(obs), env.goal_of(state))
+
+
+def test_point_mass_action_moves_a_useful_distance():
+    env = make_env("point_mass")
+    step = jax.jit(env.step)
+    state = env.reset(jax.random.key(0))
+    for _ in range(20):
+        state = step(state, jnp.array([1.0, 0.0]))
+    # 20 full-thrust actions: a few metres, so n=20 skills span a useful region.
+    assert 2.0 < float(env.goal_of(state)[0]) < 5.0
+
+
+def test_nan_guard_resets_and_counts():
+    env = make_env("point_mass")
+    state = env.reset_to(jax.random.key(0), jnp.array([3.0, 4.0]))
+    broken = state.replace(data=state.data.replace(qvel=jnp.array([jnp.nan, 0.0])))
+    stepped = jax.jit(env.step)(broken, jnp.zeros(2))
+    assert int(stepped.nan_resets) == 1
+    np.testing.assert_allclose(env.goal_of(stepped), env.home_goal())
+    assert np.isfinite(np.asarray(stepped.data.qvel)).all()
+    again = jax.jit(env.step)(stepped, jnp.zeros(2))
+    assert int(again.nan_resets) == 1, "a healthy step must not count"
+
+
+def test_nan_guard_is_per_batch_member():
+    env = make_env("point_mass")
+    states = jax.vmap(env.reset)(jax.random.split(jax.random.key(0), 3))
+    qvel = states.data.qvel.at[1, 0].set(jnp.inf)
+    states = states.replace(data=states.data.replace(qvel=qvel))
+    stepped = jax.jit(jax.vmap(env.step))(states, jnp.ones((3, 2)))
+    np.testing.assert_array_equal(stepped.nan_resets, [0, 1, 0])
+    assert float(stepped.data.qpos[0, 0]) > 0.0  # healthy members still moved
+
+
+def test_unknown_env_names_the_allowed_values():
+    with pytest.raises(ValueError, match="point_mass"):
+        make_env("pointmass")
+
+
+def test_half_cheetah_cage_wall_blocks_until_button_opens_it():
+    env = make_env("half_cheetah_cage")
+    step = jax.jit(env.step)
+    wall_x = float(env.home_mocap_pos[env.cage.wall_mocap_ids[0]][0])
+    assert wall_x == 8.0
+    # Head tip starts 0.1 short of the wall: driving into it, the torso cannot follow.
+    state = env.reset_to(jax.random.key(0), jnp.array([wall_x - 0.85]))
+    key = jax.random.key(1)
+    for _ in range(30):
+        key, sub = jax.random.split(key)
+        state = step(state, jax.random.uniform(sub, (6,), minval=-1, maxval=1))
+        assert float(env.goal_of(state)[0]) < wall_x - 0.5
+    assert not bool(env.cage_open(state))
+    assert float(env.observe(state)[-1]) == 0.0
+
+
+@pytest.mark.parametrize("name", ["ant_cage", "half_cheetah_cage"])
+def test_button_opens_cage(name):
+    env = make_env(name)
+    button = jnp.asarray(env.cage.button_center)
+    state = env.reset_to(jax.random.key(0), button)
+    assert not bool(env.cage_open(state))
+    state = jax.jit(env.step)(state, jnp.zeros(env.action_size))
+    assert bool(env.cage_open(state))
+    assert float(env.observe(state)[-1]) == 1.0
+    walls = np.asarray(state.data.mocap_pos)[list(env.cage.wall_mocap_ids)]
+    assert np.all(np.linalg.norm(walls, axis=-1) > 1000.0)
+    # a new episode closes the cage again
+    assert not bool(env.cage_open(env.reset(jax.random.key(1))))

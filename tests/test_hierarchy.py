@@ -1,0 +1,233 @@
+"""The one-scan k-level rollout: control hand-over, limits, shapes, determinism, isolation."""
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from mjx_emp.envs import make_env
+from mjx_emp.hierarchy import (
+    Hierarchy,
+    _decide,
+    decision_buckets,
+    default_start,
+    jit_init_rollout,
+    jit_rollout,
+)
+from mjx_emp.networks import goal_policy
+
+ENV = make_env("point_mass")
+START = default_start(ENV, goal_half_width=3.0)
+
+
+def steer(params, obs, goal, key):
+    """Level 0 for point mass: a PD controller toward the goal (obs = x, y, vx, vy)."""
+    return jnp.clip(2.0 * (goal - obs[:2]) - 0.5 * obs[2:4], -1.0, 1.0)
+
+
+def hop(params, obs, goal, key):
+    """Upper level: the next subgoal is a bounded step toward the level's own goal."""
+    return jnp.clip(goal - obs[:2], -0.6, 0.6)
+
+
+def mlp_agent(k: int, hidden=(32, 32)):
+    policies, params = [], []
+    for level in range(k):
+        out = ENV.action_size if level == 0 else ENV.goal_size
+        policy, init = goal_policy(ENV.obs_size, ENV.goal_size, out, hidden, half_width=1.0 if level == 0 else 1.5)
+        policies.append(policy)
+        params.append(init(jax.random.key(10 + level)))
+    return tuple(policies), tuple(params)
+
+
+def run(h, params, key, batch, steps, root=None, start=START):
+    state = jit_init_rollout(h, params, start, None, key, batch, root)
+    return (state,) + jit_rollout(h, params, start, None, state, steps)
+
+
+CONTROLLED = Hierarchy(ENV, (steer, hop), n=(20, 8), eps=(0.1, 0.3))
+
+
+@functools.cache
+def controlled_run():
+    return run(CONTROLLED, (None, None), jax.random.key(0), 16, 120)
+
+
+def test_reached_subgoal_hands_back_and_parent_reissues_in_same_step():
+    _, _, (t0, t1), _ = controlled_run()
+    t0, t1 = jax.tree.map(np.asarray, (t0, t1))
+    pos_next = t0.next_obs[..., :2]
+    reached = t0.reached & t0.valid
+    assert reached.sum() > 50, "the PD controller should reach many subgoals"
+    # Reaching ends level 0's goal and completes level 1's action in that very step.
+    np.testing.assert_array_equal(t0.final[reached], True)
+    np.testing.assert_array_equal(t1.valid, t0.final & t0.valid)
+    # Early: the hand-back happened before level 0 used its n=20 actions.
+    assert reached.sum() == t0.final.sum()
+    # The next step already pursues the parent's next subgoal, issued from the new state.
+    T = t0.goal.shape[0]
+    for t in range(T - 1):
+        same_episode = t0.final[t] & ~t1.final[t]
+        expected = pos_next[t] + np.clip(t1.goal[t + 1] - pos_next[t], -0.6, 0.6)
+        np.testing.assert_allclose(t0.goal[t + 1][same_episode], expected[same_episode], atol=1e-5)
+        live = ~t1.final[t]  # otherwise the episode restarted from a fresh start state
+        np.testing.assert_array_equal(t0.obs[t + 1][live], t0.next_obs[t][live])  # no idle step
+        kept = ~t0.final[t]
+        np.testing.assert_array_equal(t0.goal[t + 1][kept], t0.goal[t][kept])
+
+
+def run_lengths(tr, n: int):
+    """Check per env: actions between finals never exceed n; finals come from reach or n."""
+    valid, final, reached = (np.asarray(x) for x in (tr.valid, tr.final, tr.reached))
+    T, B = valid.shape
+    longest = 0
+    for b in range(B):
+        count = 0
+        for t in range(T):
+            if not valid[t, b]:
+                continue
+            count += 1
+            assert count <= n
+            if final[t, b]:
+                assert reached[t, b] or count == n
+                longest = max(longest, count)
+                count = 0
+            else:
+                assert count < n
+    return longest
+
+
+@pytest.mark.parametrize("k", [1, 2, 3])
+def test_shapes_and_action_limits(k):
+    policies, params = mlp_agent(k)
+    n = (6, 4, 3)[:k]
+    h = Hierarchy(ENV, policies, n=n, eps=(0.05, 0.1, 0.2)[:k])
+    T, B = 90, 8
+    state, new_state, transitions, stats = run(h, params, jax.random.key(k), B, T)
+    assert len(transitions) == k
+    for level, tr in enumerate(transitions):
+        act = ENV.action_size if level == 0 else ENV.goal_size
+        assert tr.obs.shape == tr.next_obs.shape == (T, B, ENV.obs_size)
+        assert tr.goal.shape == (T, B, ENV.goal_size)
+        assert tr.action.shape == (T, B, act)
+        for mask in (tr.reached, tr.final, tr.valid):
+            assert mask.shape == (T, B) and mask.dtype == bool
+        assert run_lengths(tr, n[level]) >= 1
+    assert int(stats.primitive_steps) == T * B
+    assert int(stats.useful_steps) / int(stats.primitive_steps) >= 0.95
+    # A level's actions complete exactly when the level below finishes.
+    for lower, upper in zip(transitions[:-1], transitions[1:]):
+        np.testing.assert_array_equal(upper.valid, lower.final & lower.valid)
+
+
+def test_controlled_run_respects_n_at_both_levels():
+    _, _, (t0, t1), _ = controlled_run()
+    assert run_lengths(t0, 20) <= 20
+    assert run_lengths(t1, 8) <= 8
+
+
+def test_rooted_at_a_lower_level_runs_only_levels_up_to_root():
+    policies, params = mlp_agent(3)
+    h = Hierarchy(ENV, policies, n=(5, 4, 3), eps=(0.05, 0.1, 0.2))
+    goal = jnp.array([1.0, -1.0])
+
+    def fixed_goal_start(_, key):
+        return ENV.reset(key), goal
+
+    _, _, transitions, stats = run(h, params, jax.random.key(3), 4, 60, root=1, start=fixed_goal_start)
+    assert len(transitions) == 2
+    root_goals = np.asarray(transitions[1].goal)[np.asarray(transitions[1].valid)]
+    assert len(root_goals) > 0 and np.all(root_goals == np.array([1.0, -1.0]))
+    assert int(stats.decisions[1]) > 0
+    with pytest.raises(ValueError, match="root"):
+        jit_init_rollout(h, params, fixed_goal_start, None, jax.random.key(0), 4, 3)
+
+
+def test_deterministic_under_fixed_key_and_key_matters():
+    policies, params = mlp_agent(2)
+    h = Hierarchy(ENV, policies, n=(5, 5), eps=(0.05, 0.1))
+    a = run(h, params, jax.random.key(7), 8, 40)
+    b = run(h, params, jax.random.key(7), 8, 40)
+    c = run(h, params, jax.random.key(8), 8, 40)
+    for x, y in zip(jax.tree.leaves(a[2]), jax.tree.leaves(b[2])):
+        np.testing.assert_array_equal(x, y)
+    assert not np.array_equal(a[2][0].goal, c[2][0].goal)
+
+
+def test_batch_members_are_independent():
+    policies, params = mlp_agent(2)
+    h = Hierarchy(ENV, policies, n=(5, 5), eps=(0.05, 0.1))
+    state = jit_init_rollout(h, params, START, None, jax.random.key(4), 4)
+    qpos = state.env.data.qpos.at[0].set(jnp.array([9.0, -9.0]))
+    moved = state.replace(env=state.env.replace(data=state.env.data.replace(qpos=qpos)))
+    _, base, _ = jit_rollout(h, params, START, None, state, 50)
+    _, other, _ = jit_rollout(h, params, START, None, moved, 50)
+    for x, y in zip(jax.tree.leaves(base), jax.tree.leaves(other)):
+        x, y = np.asarray(x), np.asarray(y)
+        np.testing.assert_allclose(x[:, 1:], y[:, 1:], rtol=1e-5, atol=1e-5)
+    assert not np.allclose(np.asarray(base[0].obs)[:, 0], np.asarray(other[0].obs)[:, 0])
+
+
+def test_nan_in_one_env_invalidates_its_step_and_restarts_it():
+    h = CONTROLLED
+    state = jit_init_rollout(h, (None, None), START, None, jax.random.key(5), 4)
+    qvel = state.env.data.qvel.at[2].set(jnp.nan)
+    state = state.replace(env=state.env.replace(data=state.env.data.replace(qvel=qvel)))
+    new_state, (t0, t1), stats = jit_rollout(h, (None, None), START, None, state, 10)
+    assert int(stats.nan_resets) == 1
+    assert int(new_state.env.nan_resets[2]) == 1
+    assert int(stats.useful_steps) == 4 * 10 - 1
+    assert not bool(t0.valid[0, 2]) and bool(t0.final[0, 2]) and bool(t1.final[0, 2])
+    assert bool(t0.valid[1, 2]), "the restarted env continues with a live episode"
+    assert np.isfinite(np.asarray(new_state.env.data.qpos)).all()
+
+
+def test_second_call_does_not_recompile():
+    traces = []
+
+    def counting_steer(params, obs, goal, key):
+        traces.append(1)
+        return steer(params, obs, goal, key)
+
+    h = Hierarchy(ENV, (counting_steer, hop), n=(10, 5), eps=(0.1, 0.3))
+    state = jit_init_rollout(h, (None, None), START, None, jax.random.key(0), 8)
+    state, _, _ = jit_rollout(h, (None, None), START, None, state, 20)
+    after_first = len(traces)
+    state, _, _ = jit_rollout(h, (None, None), START, None, state, 20)
+    state = jit_init_rollout(h, (None, None), START, None, jax.random.key(1), 8)
+    state, _, _ = jit_rollout(h, (None, None), START, None, state, 20)
+    assert len(traces) == after_first
+
+
+@pytest.mark.parametrize("count", [0, 1, 5, 8, 9, 31, 64])
+def test_gathered_decisions_equal_full_batch_decisions(count):
+    batch = 64
+    policy, init = goal_policy(4, 2, 2, (16,))
+    params = init(jax.random.key(0))
+    obs = jax.random.normal(jax.random.key(1), (batch, 4))
+    goals = jax.random.normal(jax.random.key(2), (batch, 2))
+    keys = jax.random.split(jax.random.key(3), batch)
+    need = jnp.zeros(batch, bool).at[jax.random.permutation(jax.random.key(4), batch)[:count]].set(True)
+    old = jnp.full((batch, 2), 7.0)
+    new, n = jax.jit(lambda nd: _decide(policy, params, obs, goals, keys, nd, old))(need)
+    full = jax.vmap(policy, (None, 0, 0, 0))(params, obs, goals, keys)
+    expected = jnp.where(need[:, None], full, old)
+    np.testing.assert_allclose(new, expected, rtol=1e-5, atol=1e-6)
+    assert int(n) == count
+    assert decision_buckets(64) == (8, 16, 32, 64)
+
+
+@pytest.mark.parametrize(
+    "kwargs, field",
+    [
+        (dict(policies=(), n=(), eps=()), "policies"),
+        (dict(policies=(steer, hop), n=(5,), eps=(0.1, 0.2)), "n and eps"),
+        (dict(policies=(steer,), n=(0,), eps=(0.1,)), "n"),
+        (dict(policies=(steer,), n=(5,), eps=(0.0,)), "eps"),
+    ],
+)
+def test_invalid_hierarchy_names_the_field(kwargs, field):
+    with pytest.raises(ValueError, match=field):
+        Hierarchy(ENV, **kwargs)
