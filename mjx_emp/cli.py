@@ -1,0 +1,126 @@
+"""``mjx-emp`` command line (tyro).
+
+Bad input exits with code 2 and a message naming the field and what it allows.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+
+import tyro
+
+from mjx_emp.experiments.rollout import RolloutExperiment
+
+
+class ConfigError(ValueError):
+    """A configuration value is invalid; the message names the field."""
+
+
+def validate_rollout(cfg: RolloutExperiment) -> None:
+    """Reject configurations that cannot describe a k-level agent."""
+    k = len(cfg.n)
+    if k < 1:
+        raise ConfigError("n: give at least one level (k >= 1), e.g. --n 20 10")
+    if any(v < 1 for v in cfg.n):
+        raise ConfigError(f"n: every entry must be an integer >= 1; got {cfg.n}")
+    if len(cfg.eps) != k:
+        raise ConfigError(f"eps: needs one entry per level (k={k} from n); got {len(cfg.eps)}")
+    if any(not v > 0 for v in cfg.eps):
+        raise ConfigError(f"eps: every entry must be > 0; got {cfg.eps}")
+    if len(cfg.subgoal_half_width) < k - 1 or any(not v > 0 for v in cfg.subgoal_half_width):
+        raise ConfigError(
+            f"subgoal_half_width: needs k-1={k - 1} positive entries; got {cfg.subgoal_half_width}"
+        )
+    for name in ("batch_size", "steps", "calls"):
+        if getattr(cfg, name) < 1:
+            raise ConfigError(f"{name}: must be >= 1; got {getattr(cfg, name)}")
+    if not cfg.root_goal_half_width > 0:
+        raise ConfigError(f"root_goal_half_width: must be > 0; got {cfg.root_goal_half_width}")
+
+
+def run_rollout(cfg: RolloutExperiment) -> dict:
+    """Roll out a random-init k-level agent; return per-level statistics and throughput."""
+    import jax  # deferred: keeps `--help` fast
+
+    from mjx_emp.envs import make_env
+    from mjx_emp.hierarchy import Hierarchy, default_start, jit_init_rollout, jit_rollout
+    from mjx_emp.networks import goal_policy
+
+    env = make_env(cfg.env)
+    key = jax.random.key(cfg.seed)
+    policies, params = [], []
+    for level in range(len(cfg.n)):
+        out = env.action_size if level == 0 else env.goal_size
+        width = 1.0 if level == 0 else cfg.subgoal_half_width[level - 1]
+        policy, init = goal_policy(env.obs_size, env.goal_size, out, cfg.hidden, half_width=width)
+        policies.append(policy)
+        params.append(init(jax.random.fold_in(key, level)))
+    h = Hierarchy(env, tuple(policies), n=cfg.n, eps=cfg.eps)
+    params = tuple(params)
+    start = default_start(env, cfg.root_goal_half_width)
+
+    t0 = time.perf_counter()
+    state = jit_init_rollout(h, params, start, None, jax.random.fold_in(key, 99), cfg.batch_size)
+    state, _, stats = jit_rollout(h, params, start, None, state, cfg.steps)
+    jax.block_until_ready(stats)
+    compile_s = time.perf_counter() - t0
+
+    totals = {"useful": 0, "steps": 0, "episodes": 0, "nan": 0}
+    reached = [0] * h.k
+    finals = [0] * h.k
+    elapsed = 0.0
+    for _ in range(cfg.calls):
+        t0 = time.perf_counter()
+        state, transitions, stats = jit_rollout(h, params, start, None, state, cfg.steps)
+        jax.block_until_ready(stats)
+        elapsed += time.perf_counter() - t0
+        totals["useful"] += int(stats.useful_steps)
+        totals["steps"] += int(stats.primitive_steps)
+        totals["episodes"] += int(stats.episodes_finished)
+        totals["nan"] += int(stats.nan_resets)
+        for level, tr in enumerate(transitions):
+            reached[level] += int((tr.reached & tr.valid).sum())
+            finals[level] += int((tr.final & tr.valid).sum())
+    return {
+        "env": cfg.env,
+        "k": h.k,
+        "n": list(h.n),
+        "batch_size": cfg.batch_size,
+        "primitive_steps": totals["steps"],
+        "useful_step_fraction": totals["useful"] / totals["steps"],
+        "useful_physics_steps_per_s": totals["useful"] * env.action_repeat / elapsed,
+        "primitive_steps_per_s": totals["steps"] / elapsed,
+        "compile_and_first_call_s": compile_s,
+        "root_episodes_finished": totals["episodes"],
+        "goals_ended_per_level": finals,
+        "goals_reached_per_level": reached,
+        "nan_resets": totals["nan"],
+        "backend": jax.default_backend(),
+    }
+
+
+def rollout(cfg: RolloutExperiment) -> None:
+    """Roll out a random-init k-level agent and print statistics as JSON."""
+    validate_rollout(cfg)
+    print(json.dumps(run_rollout(cfg), indent=1))
+
+
+COMMANDS = {"rollout": (RolloutExperiment, rollout)}
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Entry point of the ``mjx-emp`` console script."""
+    configs = {name: config for name, (config, _) in COMMANDS.items()}
+    cfg = tyro.extras.subcommand_cli_from_dict(configs, args=argv, prog="mjx-emp")
+    command = next(run for config, run in COMMANDS.values() if isinstance(cfg, config))
+    try:
+        command(cfg)
+    except ConfigError as err:
+        print(f"mjx-emp: invalid configuration: {err}", file=sys.stderr)
+        sys.exit(2)
+
+
+if __name__ == "__main__":
+    main()
