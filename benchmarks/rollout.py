@@ -5,8 +5,9 @@ For each domain, batch size B and number of levels k, measured in the same proce
 - hier: ``jit_rollout`` of a k-level agent with 256x256 MLP policies at every level;
 - useful physics steps/s (physics steps that advanced a live episode), the useful-step
   fraction, compile time (first call minus a warm call), and whether a later call
-  recompiled. Per (domain, B) the raw loop and every k are timed round-robin, so their
-  ratios are measured side by side; each figure is the median of ``--repeats`` calls.
+  recompiled. Per (domain, B) the raw loop and every k are timed round-robin; each
+  ratio is the median over rounds of that round's ratio (so drifts of a shared machine
+  cancel), and each absolute figure the median of ``--repeats`` calls.
 
 Prints a Markdown table and writes JSON (default ``benchmarks/results/rollout_<backend>.json``).
 """
@@ -15,19 +16,21 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import platform
 import statistics
 import time
 from pathlib import Path
 
 import jax
-import jax.numpy as jnp
+import numpy as np
 import tyro
 
 from mjx_emp._mjx import mjx
 from mjx_emp.envs import make_env
 from mjx_emp.hierarchy import Hierarchy, default_start, jit_init_rollout, jit_rollout
 from mjx_emp.networks import goal_policy
+from mjx_emp.scripted import bounded_hop, point_mass_pd
 
 # Paper-style per-level settings (Ant Field XL, k=3): n=[20,10,10], eps=[0.6,1.2,2.4].
 N_PER_LEVEL = (20, 10, 10)
@@ -45,7 +48,9 @@ class Args:
     hidden: tuple[int, ...] = (256, 256)
     primitive_steps: int = 0
     """Primitive actions per timed call; 0 picks per domain (point mass 400, others 40)."""
-    repeats: int = 5
+    repeats: int = 7
+    handover_steps: int = 400
+    """Primitive actions per call in the hand-over comparison (0 skips it)."""
     out: str = ""
     """JSON output path; empty means benchmarks/results/rollout_<backend>.json."""
 
@@ -115,11 +120,14 @@ def bench_group(env, batch: int, steps: int, args: Args) -> list[dict]:
 
     t_raw = statistics.median(times["raw"])
     raw_sps = batch * physics / t_raw
+    base_k = min(agents)
     rows = []
     for k, (h, _, _) in agents.items():
-        t_hier = statistics.median(times[k])
         useful_fraction = useful[k] / (args.repeats * steps * batch)
-        hier_sps = useful_fraction * batch * physics / t_hier
+        hier_sps = useful_fraction * batch * physics / statistics.median(times[k])
+        # Ratios pair the calls of one round, so slow drifts of a shared machine cancel.
+        over_raw = [useful_fraction * r / t for r, t in zip(times["raw"], times[k])]
+        over_base = [tb / t for tb, t in zip(times[base_k], times[k])]
         rows.append({
             "env": env.name,
             "batch": batch,
@@ -129,29 +137,89 @@ def bench_group(env, batch: int, steps: int, args: Args) -> list[dict]:
             "physics_steps_per_call": batch * physics,
             "raw_physics_steps_per_s": raw_sps,
             "hier_useful_physics_steps_per_s": hier_sps,
-            "hier_over_raw": hier_sps / raw_sps,
+            "hier_over_raw": statistics.median(over_raw),
+            f"hier_over_k{base_k}": statistics.median(over_base),
             "useful_fraction": useful_fraction,
             "compile_s_raw": first["raw"] - t_raw,
-            "compile_s_hier": first[k] - t_hier,
+            "compile_s_hier": first[k] - statistics.median(times[k]),
             "recompiled_on_later_calls": recompiled,
         })
     return rows
 
 
+def padded_nested_fraction(root_final: np.ndarray, n: tuple[int, ...]) -> float | None:
+    """Useful-step fraction a nested scan would get on the same episodes.
+
+    A nested scan pads every level to its n actions with masked no-op physics, so each
+    root episode occupies prod(n) primitive slots however early it ends. Uses the
+    complete root episodes in ``root_final`` ([T, B]); None when there are none.
+    """
+    lengths = []
+    for column in np.asarray(root_final).T:
+        lengths.extend(np.diff(np.flatnonzero(column)).tolist())
+    if not lengths:
+        return None
+    return sum(lengths) / (len(lengths) * math.prod(n))
+
+
+def bench_handover(args: Args, batch: int = 256) -> list[dict]:
+    """Agents that reach their goals (scripted point mass): one-scan vs padded nested useful fraction."""
+    env = make_env("point_mass")
+    steps = args.handover_steps
+    start = default_start(env, goal_half_width=10.0)
+    rows = []
+    for k in args.levels:
+        policies = (point_mass_pd, bounded_hop(SUBGOAL_HALF_WIDTH[0]), bounded_hop(SUBGOAL_HALF_WIDTH[1]))[:k]
+        h = Hierarchy(env, policies, n=N_PER_LEVEL[:k], eps=EPS_PER_LEVEL[:k])
+        params = (None,) * k
+        state = jit_init_rollout(h, params, start, None, jax.random.key(3), batch)
+        state, _, _ = jit_rollout(h, params, start, None, state, steps)  # compile, reach steady state
+        times, finals, useful = [], [], 0
+        for _ in range(args.repeats):
+            dt, (state, transitions, stats) = _timed(jit_rollout, h, params, start, None, state, steps)
+            times.append(dt)
+            finals.append(np.asarray(transitions[-1].final))
+            useful += int(stats.useful_steps)
+        nested = padded_nested_fraction(np.concatenate(finals), h.n)
+        rows.append({
+            "env": env.name,
+            "batch": batch,
+            "k": k,
+            "n": list(h.n),
+            "useful_fraction": useful / (args.repeats * steps * batch),
+            "padded_nested_fraction": nested,
+            "useful_physics_steps_per_s": useful * env.action_repeat / sum(times),
+        })
+    return rows
+
+
 def markdown(rows: list[dict]) -> str:
-    """The results as a Markdown table, with hier/k=1 ratios per (env, B)."""
-    k1 = {(r["env"], r["batch"]): r["hier_useful_physics_steps_per_s"] for r in rows if r["k"] == 1}
+    """The results as a Markdown table (ratios are medians of per-round ratios)."""
     lines = [
         "| env | B | k | raw mjx.step /s | hier useful /s | hier/raw | hier/k=1 | useful frac | compile s |",
         "|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
-        base = k1.get((r["env"], r["batch"]))
-        vs_k1 = f"{r['hier_useful_physics_steps_per_s'] / base:.2f}" if base else "-"
+        vs_k1 = f"{r['hier_over_k1']:.2f}" if "hier_over_k1" in r else "-"
         lines.append(
             f"| {r['env']} | {r['batch']} | {r['k']} | {r['raw_physics_steps_per_s']:,.0f} | "
             f"{r['hier_useful_physics_steps_per_s']:,.0f} | {r['hier_over_raw']:.2f} | {vs_k1} | "
             f"{r['useful_fraction']:.3f} | {r['compile_s_hier']:.1f} |"
+        )
+    return "\n".join(lines)
+
+
+def handover_markdown(rows: list[dict]) -> str:
+    """The hand-over comparison as a Markdown table."""
+    lines = [
+        "| env | B | k | n | one-scan useful frac | padded nested useful frac | one-scan useful /s |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        nested = "-" if r["padded_nested_fraction"] is None else f"{r['padded_nested_fraction']:.3f}"
+        lines.append(
+            f"| {r['env']} | {r['batch']} | {r['k']} | {r['n']} | {r['useful_fraction']:.3f} | "
+            f"{nested} | {r['useful_physics_steps_per_s']:,.0f} |"
         )
     return "\n".join(lines)
 
@@ -174,6 +242,9 @@ def main(args: Args) -> None:
                 )
     table = markdown(rows)
     print(table)
+    handover = bench_handover(args) if args.handover_steps else []
+    handover_table = handover_markdown(handover)
+    print(handover_table)
     out = Path(args.out or Path(__file__).parent / "results" / f"rollout_{backend}.json")
     out.parent.mkdir(parents=True, exist_ok=True)
     meta = {
@@ -182,7 +253,10 @@ def main(args: Args) -> None:
         "machine": platform.machine(),
         "jax": jax.__version__,
     }
-    out.write_text(json.dumps({"meta": meta, "rows": rows, "table": table}, indent=1))
+    out.write_text(json.dumps(
+        {"meta": meta, "rows": rows, "table": table, "handover": handover, "handover_table": handover_table},
+        indent=1,
+    ))
     print(f"wrote {out}")
 
 

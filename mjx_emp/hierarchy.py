@@ -327,7 +327,8 @@ def rollout(
 
     The root level is the one ``state`` was initialised with. Jit with ``h``, ``start``
     and ``num_steps`` static (see :func:`jit_rollout`); everything else may change between
-    calls without recompiling.
+    calls without recompiling. Static arguments hash by identity, so keep one ``Hierarchy``
+    and one ``start`` function object per agent: a freshly built closure compiles anew.
     """
     root = len(state.counts) - 1
     _check_root(h, root)

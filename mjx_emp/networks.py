@@ -7,7 +7,7 @@ bounds at level 0, the child's goal-space box (half-widths and shift) above it.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import flax.linen as nn
 import jax
@@ -36,7 +36,7 @@ def goal_policy(
     hidden: Sequence[int] = (256, 256),
     half_width: float | jax.Array = 1.0,
     shift: float | jax.Array = 0.0,
-) -> tuple[LevelPolicy, callable]:
+) -> tuple[LevelPolicy, Callable[[jax.Array], Params]]:
     """A fixed-box deterministic goal-conditioned policy and its initialiser.
 
     Returns ``(policy, init)`` with ``policy(params, obs, goal, key) -> action`` in

@@ -17,19 +17,14 @@ from mjx_emp.hierarchy import (
     jit_rollout,
 )
 from mjx_emp.networks import goal_policy
+from mjx_emp.scripted import bounded_hop, point_mass_pd
 
 ENV = make_env("point_mass")
 START = default_start(ENV, goal_half_width=3.0)
 
 
-def steer(params, obs, goal, key):
-    """Level 0 for point mass: a PD controller toward the goal (obs = x, y, vx, vy)."""
-    return jnp.clip(2.0 * (goal - obs[:2]) - 0.5 * obs[2:4], -1.0, 1.0)
-
-
-def hop(params, obs, goal, key):
-    """Upper level: the next subgoal is a bounded step toward the level's own goal."""
-    return jnp.clip(goal - obs[:2], -0.6, 0.6)
+steer = point_mass_pd
+hop = bounded_hop(0.6)
 
 
 def mlp_agent(k: int, hidden=(32, 32)):
