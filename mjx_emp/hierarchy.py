@@ -193,7 +193,11 @@ def _issue_subgoals(
     finished: list,
     keys: jax.Array,
 ) -> list:
-    """Top-down: each level i whose child finished gives the child its next subgoal."""
+    """Top-down: each level i whose child finished gives the child its next subgoal.
+
+    Updates the per-level lists ``goals``, ``issued_obs`` and ``issued_action`` in place
+    (they are the scan step's local working copies) and returns decisions per level.
+    """
     env = h.env
     obs = jax.vmap(env.observe)(env_state)
     pos = jax.vmap(env.goal_of)(env_state)
@@ -253,6 +257,7 @@ def _check_root(h: Hierarchy, root: int) -> None:
 
 
 def _scan_step(h, params, start, start_params, root, state: RolloutState, _):
+    """One primitive step of every environment: act, simulate, hand back, restart, re-issue."""
     env = h.env
     batch = state.counts[0].shape[0]
     key, policy_key, start_key = jax.random.split(state.key, 3)
