@@ -11,24 +11,14 @@ import time
 
 import tyro
 
+from mjx_emp.config import ConfigError, check_levels
 from mjx_emp.experiments.rollout import RolloutExperiment
-
-
-class ConfigError(ValueError):
-    """A configuration value is invalid; the message names the field."""
 
 
 def validate_rollout(cfg: RolloutExperiment) -> None:
     """Reject configurations that cannot describe a k-level agent."""
+    check_levels(cfg.n, cfg.eps)
     k = len(cfg.n)
-    if k < 1:
-        raise ConfigError("n: give at least one level (k >= 1), e.g. --n 20 10")
-    if any(v < 1 for v in cfg.n):
-        raise ConfigError(f"n: every entry must be an integer >= 1; got {cfg.n}")
-    if len(cfg.eps) != k:
-        raise ConfigError(f"eps: needs one entry per level (k={k} from n); got {len(cfg.eps)}")
-    if any(not v > 0 for v in cfg.eps):
-        raise ConfigError(f"eps: every entry must be > 0; got {cfg.eps}")
     if len(cfg.subgoal_half_width) < k - 1 or any(not v > 0 for v in cfg.subgoal_half_width):
         raise ConfigError(
             f"subgoal_half_width: needs k-1={k - 1} positive entries; got {cfg.subgoal_half_width}"

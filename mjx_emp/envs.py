@@ -25,6 +25,7 @@ import numpy as np
 from flax import struct
 
 from mjx_emp._mjx import mjx
+from mjx_emp.config import ConfigError
 
 MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
 
@@ -211,7 +212,7 @@ def _make_cage(m: mujoco.MjModel, spec: DomainSpec) -> Cage:
 def make_env(name: str) -> Env:
     """Build a domain by name (see :data:`DOMAINS`); cached so every caller shares one Env."""
     if name not in DOMAINS:
-        raise ValueError(f"env name {name!r} is unknown; allowed values: {sorted(DOMAINS)}")
+        raise ConfigError(f"env name {name!r} is unknown; allowed values: {sorted(DOMAINS)}")
     spec = DOMAINS[name]
     m = mujoco.MjModel.from_xml_path(str(MODELS_DIR / spec.xml))
     d = mujoco.MjData(m)

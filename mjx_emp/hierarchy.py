@@ -33,6 +33,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from mjx_emp.config import ConfigError, check_levels
 from mjx_emp.envs import Env, EnvState, tree_where
 
 Params = Any
@@ -54,15 +55,9 @@ class Hierarchy:
     eps: tuple[float, ...]
 
     def __post_init__(self):
-        k = len(self.policies)
-        if k < 1:
-            raise ValueError("policies: need at least one level (k >= 1)")
-        if len(self.n) != k or len(self.eps) != k:
-            raise ValueError(f"n and eps must have one entry per level (k={k}); got n={self.n}, eps={self.eps}")
-        if any(n_i < 1 for n_i in self.n):
-            raise ValueError(f"n: every entry must be >= 1; got {self.n}")
-        if any(not e > 0 for e in self.eps):
-            raise ValueError(f"eps: every entry must be > 0; got {self.eps}")
+        if not self.policies:
+            raise ConfigError("policies: need at least one level (k >= 1)")
+        check_levels(self.n, self.eps, k=len(self.policies))
 
     @property
     def k(self) -> int:
@@ -253,7 +248,7 @@ def init_rollout(
 
 def _check_root(h: Hierarchy, root: int) -> None:
     if not 0 <= root < h.k:
-        raise ValueError(f"root must be a level in 0..{h.k - 1}; got {root}")
+        raise ConfigError(f"root must be a level in 0..{h.k - 1}; got {root}")
 
 
 def _scan_step(h, params, start, start_params, root, state: RolloutState, _):
