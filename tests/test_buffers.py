@@ -1,0 +1,67 @@
+"""Replay buffer: masked insertion, ring wrap-around, sampling, rollout hand-off."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from mjx_emp.buffers import flatten_rows, replay_init, replay_insert, replay_sample
+
+insert = jax.jit(replay_insert)
+
+
+def rows(values):
+    values = jnp.asarray(values, jnp.float32)
+    return {"x": values, "pair": jnp.stack([values, -values], axis=-1)}
+
+
+def example():
+    return {"x": jnp.zeros(()), "pair": jnp.zeros(2)}
+
+
+def test_only_valid_rows_are_inserted_in_order():
+    buffer = replay_init(example(), capacity=8)
+    buffer = insert(buffer, rows([1, 2, 3, 4, 5]), jnp.array([True, False, True, False, True]))
+    assert int(buffer.size) == 3 and int(buffer.insert_pos) == 3
+    np.testing.assert_array_equal(buffer.data["x"][:3], [1, 3, 5])
+    np.testing.assert_array_equal(buffer.data["pair"][:3, 1], [-1, -3, -5])
+    np.testing.assert_array_equal(buffer.data["x"][3:], 0)
+
+
+def test_ring_wraps_and_overwrites_oldest():
+    buffer = replay_init(example(), capacity=5)
+    buffer = insert(buffer, rows([1, 2, 3]), jnp.ones(3, bool))
+    buffer = insert(buffer, rows([4, 5, 6, 7, 0]), jnp.array([True, True, True, True, False]))
+    assert int(buffer.size) == 5 and int(buffer.insert_pos) == 2
+    np.testing.assert_array_equal(buffer.data["x"], [6, 7, 3, 4, 5])
+
+
+def test_oversized_insert_keeps_the_newest_rows():
+    buffer = replay_init(example(), capacity=5)
+    buffer = insert(buffer, rows([1]), jnp.ones(1, bool))
+    buffer = insert(buffer, rows(np.arange(10, 18)), jnp.ones(8, bool))
+    assert int(buffer.size) == 5 and int(buffer.insert_pos) == (1 + 8) % 5
+    assert sorted(np.asarray(buffer.data["x"]).tolist()) == [13, 14, 15, 16, 17]
+    one_by_one = replay_init(example(), capacity=5)
+    for v in [1] + list(range(10, 18)):
+        one_by_one = insert(one_by_one, rows([v]), jnp.ones(1, bool))
+    np.testing.assert_array_equal(buffer.data["x"], one_by_one.data["x"])
+
+
+def test_sample_draws_only_filled_rows():
+    buffer = replay_init(example(), capacity=100)
+    buffer = insert(buffer, rows([7, 8, 9]), jnp.ones(3, bool))
+    sample = jax.jit(replay_sample, static_argnums=2)(buffer, jax.random.key(0), 256)
+    assert sample["x"].shape == (256,) and sample["pair"].shape == (256, 2)
+    assert set(np.asarray(sample["x"]).tolist()) == {7.0, 8.0, 9.0}
+
+
+def test_rollout_transitions_flatten_into_the_buffer():
+    t, b, obs = 4, 3, 5
+    valid = jnp.array([[1, 0, 1], [0, 0, 1], [1, 1, 1], [0, 0, 0]], bool)
+    tree = {"obs": jnp.arange(t * b * obs, dtype=jnp.float32).reshape(t, b, obs), "valid": valid}
+    flat = flatten_rows(tree)
+    assert flat["obs"].shape == (t * b, obs)
+    buffer = replay_init(jax.tree.map(lambda x: x[0], flat), capacity=32)
+    buffer = insert(buffer, flat, flat["valid"])
+    assert int(buffer.size) == int(valid.sum())
+    np.testing.assert_array_equal(buffer.data["obs"][: int(valid.sum())], np.asarray(flat["obs"])[np.asarray(flat["valid"])])
