@@ -70,8 +70,9 @@ class DomainSpec:
 
 # Control interval = timestep * action_repeat = 0.1 s in every domain. The paper's
 # Brax agents also used a coarse control step; at 0.1 s a primitive action moves the
-# point mass up to 0.2 (terminal speed 2 m/s) and lets a walking Ant or a running
-# Half Cheetah cover 0.1-0.3 per action, so an n=20 skill spans a few metres.
+# point mass up to 0.2 (terminal speed 2 m/s). An Ant or Half Cheetah gait of 1-3 m/s
+# (estimated, not yet measured) would cover 0.1-0.3 per action, so an n=20 skill can
+# span a few metres.
 DOMAINS: dict[str, DomainSpec] = {
     "point_mass": DomainSpec("point_mass.xml", action_repeat=5, goal_qpos=(0, 1)),
     "ant_field": DomainSpec("ant_field.xml", action_repeat=10, goal_qpos=(0, 1)),
