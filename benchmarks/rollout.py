@@ -29,7 +29,7 @@ import tyro
 from mjx_emp._mjx import mjx
 from mjx_emp.envs import make_env
 from mjx_emp.hierarchy import Hierarchy, default_start, jit_init_rollout, jit_rollout
-from mjx_emp.networks import goal_policy
+from mjx_emp.networks import mlp_agent
 from mjx_emp.scripted import bounded_hop, point_mass_pd
 
 # Paper-style per-level settings (Ant Field XL, k=3): n=[20,10,10], eps=[0.6,1.2,2.4].
@@ -63,20 +63,9 @@ def _timed(fn, *args):
 
 
 def make_agent(env, k: int, hidden: tuple[int, ...], key: jax.Array):
-    """k random-init MLP policies (level 0 primitive, upper levels subgoal boxes) and their params."""
-    policies, params = [], []
-    for level in range(k):
-        if level == 0:
-            policy, init = goal_policy(env.obs_size, env.goal_size, env.action_size, hidden)
-        else:
-            policy, init = goal_policy(
-                env.obs_size, env.goal_size, env.goal_size, hidden,
-                half_width=SUBGOAL_HALF_WIDTH[level - 1],
-            )
-        policies.append(policy)
-        params.append(init(jax.random.fold_in(key, level)))
-    h = Hierarchy(env, tuple(policies), n=N_PER_LEVEL[:k], eps=EPS_PER_LEVEL[:k])
-    return h, tuple(params)
+    """The benchmark's k-level agent: random-init MLP policies with the paper-style n and eps."""
+    policies, params = mlp_agent(env, k, hidden, SUBGOAL_HALF_WIDTH, key)
+    return Hierarchy(env, policies, n=N_PER_LEVEL[:k], eps=EPS_PER_LEVEL[:k]), params
 
 
 def make_raw(env, batch: int, physics_steps: int):

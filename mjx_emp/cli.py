@@ -36,19 +36,12 @@ def run_rollout(cfg: RolloutExperiment) -> dict:
 
     from mjx_emp.envs import make_env
     from mjx_emp.hierarchy import Hierarchy, default_start, jit_init_rollout, jit_rollout
-    from mjx_emp.networks import goal_policy
+    from mjx_emp.networks import mlp_agent
 
     env = make_env(cfg.env)
     key = jax.random.key(cfg.seed)
-    policies, params = [], []
-    for level in range(len(cfg.n)):
-        out = env.action_size if level == 0 else env.goal_size
-        width = 1.0 if level == 0 else cfg.subgoal_half_width[level - 1]
-        policy, init = goal_policy(env.obs_size, env.goal_size, out, cfg.hidden, half_width=width)
-        policies.append(policy)
-        params.append(init(jax.random.fold_in(key, level)))
-    h = Hierarchy(env, tuple(policies), n=cfg.n, eps=cfg.eps)
-    params = tuple(params)
+    policies, params = mlp_agent(env, len(cfg.n), cfg.hidden, cfg.subgoal_half_width, key)
+    h = Hierarchy(env, policies, n=cfg.n, eps=cfg.eps)
     start = default_start(env, cfg.root_goal_half_width)
 
     t0 = time.perf_counter()

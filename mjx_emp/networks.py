@@ -13,6 +13,7 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
+from mjx_emp.envs import Env
 from mjx_emp.hierarchy import LevelPolicy, Params
 
 
@@ -54,3 +55,26 @@ def goal_policy(
         return net.init(key, jnp.zeros(obs_size + goal_size))
 
     return policy, init
+
+
+def mlp_agent(
+    env: Env,
+    k: int,
+    hidden: Sequence[int],
+    subgoal_half_widths: Sequence[float],
+    key: jax.Array,
+) -> tuple[tuple[LevelPolicy, ...], tuple[Params, ...]]:
+    """Random-init MLP policies for a k-level agent and their params.
+
+    Level 0 outputs primitive actions in [-1, 1]; level i > 0 outputs subgoals in a box of
+    half-width ``subgoal_half_widths[i - 1]`` around h(s). Params of level i come from
+    ``fold_in(key, i)``.
+    """
+    policies, params = [], []
+    for level in range(k):
+        out = env.action_size if level == 0 else env.goal_size
+        width = 1.0 if level == 0 else subgoal_half_widths[level - 1]
+        policy, init = goal_policy(env.obs_size, env.goal_size, out, hidden, half_width=width)
+        policies.append(policy)
+        params.append(init(jax.random.fold_in(key, level)))
+    return tuple(policies), tuple(params)

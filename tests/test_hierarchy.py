@@ -16,7 +16,7 @@ from mjx_emp.hierarchy import (
     jit_init_rollout,
     jit_rollout,
 )
-from mjx_emp.networks import goal_policy
+from mjx_emp.networks import goal_policy, mlp_agent
 from mjx_emp.scripted import bounded_hop, point_mass_pd
 
 ENV = make_env("point_mass")
@@ -27,14 +27,8 @@ steer = point_mass_pd
 hop = bounded_hop(0.6)
 
 
-def mlp_agent(k: int, hidden=(32, 32)):
-    policies, params = [], []
-    for level in range(k):
-        out = ENV.action_size if level == 0 else ENV.goal_size
-        policy, init = goal_policy(ENV.obs_size, ENV.goal_size, out, hidden, half_width=1.0 if level == 0 else 1.5)
-        policies.append(policy)
-        params.append(init(jax.random.key(10 + level)))
-    return tuple(policies), tuple(params)
+def small_agent(k: int):
+    return mlp_agent(ENV, k, (32, 32), (1.5, 1.5), jax.random.key(10))
 
 
 def run(h, params, key, batch, steps, root=None, start=START):
@@ -96,7 +90,7 @@ def run_lengths(tr, n: int):
 
 @pytest.mark.parametrize("k", [1, 2, 3])
 def test_shapes_and_action_limits(k):
-    policies, params = mlp_agent(k)
+    policies, params = small_agent(k)
     n = (6, 4, 3)[:k]
     h = Hierarchy(ENV, policies, n=n, eps=(0.05, 0.1, 0.2)[:k])
     T, B = 90, 8
@@ -124,7 +118,7 @@ def test_controlled_run_respects_n_at_both_levels():
 
 
 def test_rooted_at_a_lower_level_runs_only_levels_up_to_root():
-    policies, params = mlp_agent(3)
+    policies, params = small_agent(3)
     h = Hierarchy(ENV, policies, n=(5, 4, 3), eps=(0.05, 0.1, 0.2))
     goal = jnp.array([1.0, -1.0])
 
@@ -141,7 +135,7 @@ def test_rooted_at_a_lower_level_runs_only_levels_up_to_root():
 
 
 def test_deterministic_under_fixed_key_and_key_matters():
-    policies, params = mlp_agent(2)
+    policies, params = small_agent(2)
     h = Hierarchy(ENV, policies, n=(5, 5), eps=(0.05, 0.1))
     a = run(h, params, jax.random.key(7), 8, 40)
     b = run(h, params, jax.random.key(7), 8, 40)
@@ -152,7 +146,7 @@ def test_deterministic_under_fixed_key_and_key_matters():
 
 
 def test_batch_members_are_independent():
-    policies, params = mlp_agent(2)
+    policies, params = small_agent(2)
     h = Hierarchy(ENV, policies, n=(5, 5), eps=(0.05, 0.1))
     state = jit_init_rollout(h, params, START, None, jax.random.key(4), 4)
     qpos = state.env.data.qpos.at[0].set(jnp.array([9.0, -9.0]))
