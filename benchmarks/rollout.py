@@ -92,7 +92,7 @@ def bench_group(env, batch: int, steps: int, args: Args) -> list[dict]:
     for k in args.levels:
         h, params = make_agent(env, k, args.hidden, jax.random.key(k))
         state = jit_init_rollout(h, params, start, None, jax.random.key(2), batch)
-        first[k], (state, _, _) = _timed(jit_rollout, h, params, start, None, state, steps)
+        first[k], (state, _, _, _) = _timed(jit_rollout, h, params, start, None, state, steps)
         agents[k] = [h, params, state]
     compiled_programs = jit_rollout._cache_size()
 
@@ -102,7 +102,7 @@ def bench_group(env, batch: int, steps: int, args: Args) -> list[dict]:
         times["raw"].append(_timed(raw, *raw_args)[0])
         for k, agent in agents.items():
             h, params, state = agent
-            dt, (agent[2], _, stats) = _timed(jit_rollout, h, params, start, None, state, steps)
+            dt, (agent[2], _, _, stats) = _timed(jit_rollout, h, params, start, None, state, steps)
             times[k].append(dt)
             useful[k] += int(stats.useful_steps)
     recompiled = jit_rollout._cache_size() > compiled_programs
@@ -162,10 +162,10 @@ def bench_handover(args: Args, batch: int = 256) -> list[dict]:
         h = Hierarchy(env, policies, n=N_PER_LEVEL[:k], eps=EPS_PER_LEVEL[:k])
         params = (None,) * k
         state = jit_init_rollout(h, params, start, None, jax.random.key(3), batch)
-        state, _, _ = jit_rollout(h, params, start, None, state, steps)  # compile, reach steady state
+        state, _, _, _ = jit_rollout(h, params, start, None, state, steps)  # compile, reach steady state
         times, finals, useful = [], [], 0
         for _ in range(args.repeats):
-            dt, (state, transitions, stats) = _timed(jit_rollout, h, params, start, None, state, steps)
+            dt, (state, transitions, _, stats) = _timed(jit_rollout, h, params, start, None, state, steps)
             times.append(dt)
             finals.append(np.asarray(transitions[-1].final))
             useful += int(stats.useful_steps)

@@ -46,7 +46,7 @@ def run_rollout(cfg: RolloutExperiment) -> dict:
 
     t0 = time.perf_counter()
     state = jit_init_rollout(h, params, start, None, jax.random.fold_in(key, 99), cfg.batch_size)
-    state, _, stats = jit_rollout(h, params, start, None, state, cfg.steps)
+    state, _, _, stats = jit_rollout(h, params, start, None, state, cfg.steps)
     jax.block_until_ready(stats)
     compile_s = time.perf_counter() - t0
 
@@ -56,7 +56,7 @@ def run_rollout(cfg: RolloutExperiment) -> dict:
     elapsed = 0.0
     for _ in range(cfg.calls):
         t0 = time.perf_counter()
-        state, transitions, stats = jit_rollout(h, params, start, None, state, cfg.steps)
+        state, transitions, _, stats = jit_rollout(h, params, start, None, state, cfg.steps)
         jax.block_until_ready(stats)
         elapsed += time.perf_counter() - t0
         totals["useful"] += int(stats.useful_steps)

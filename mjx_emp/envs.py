@@ -134,6 +134,19 @@ class Env:
         data = self.template.replace(qpos=qpos)
         return EnvState(data=data, key=key, nan_resets=jnp.zeros((), jnp.int32))
 
+    def restore(self, key: jax.Array, obs: jax.Array) -> EnvState:
+        """The state an observation describes: qpos, qvel and, in cages, open or closed walls.
+
+        Start-state buffers keep observations; this turns one back into a state to start a
+        skill from.
+        """
+        nq, nv = self.mj_model.nq, self.mj_model.nv
+        dtype = self.template.qpos.dtype
+        data = self.template.replace(qpos=obs[:nq].astype(dtype), qvel=obs[nq : nq + nv].astype(dtype))
+        if self.cage is not None:
+            data = data.replace(mocap_pos=self._wall_positions(obs[-1] > 0.5))
+        return EnvState(data=data, key=key, nan_resets=jnp.zeros((), jnp.int32))
+
     def step(self, state: EnvState, action: jax.Array) -> EnvState:
         """Apply one primitive action (clipped to [-1, 1]) for ``action_repeat`` physics steps.
 
@@ -162,6 +175,22 @@ class Env:
             parts.append(self.cage_open(state)[None].astype(state.data.qpos.dtype))
         return jnp.concatenate(parts)
 
+    def features(self, obs: jax.Array) -> jax.Array:
+        """What networks see of an observation.
+
+        On an open field nothing depends on where the torso is, so h(s) is dropped and
+        every network is translation invariant: skills learnt near the start transfer to
+        start states far away. In a cage the position matters (walls, button) and stays.
+        """
+        if self.cage is not None:
+            return obs
+        keep = np.setdiff1d(np.arange(obs.shape[-1]), np.asarray(self.goal_qpos))
+        return obs[..., keep]
+
+    @property
+    def feature_size(self) -> int:
+        return self.obs_size - (0 if self.cage is not None else self.goal_size)
+
     def goal_of_obs(self, obs: jax.Array) -> jax.Array:
         """h(s) read back from an observation (the first entries of obs are qpos)."""
         return obs[..., jnp.asarray(self.goal_qpos)]
@@ -172,15 +201,19 @@ class Env:
             return jnp.zeros((), bool)
         return jnp.any(state.data.mocap_pos != jnp.asarray(self.home_mocap_pos))
 
+    def _wall_positions(self, is_open: jax.Array) -> jax.Array:
+        """Mocap positions of a closed cage, or of an open one (walls moved far out)."""
+        home = jnp.asarray(self.home_mocap_pos)
+        ids = jnp.asarray(self.cage.wall_mocap_ids)
+        opened = home.at[ids].set(home[ids] * self.cage.open_scale)
+        return jnp.where(is_open, opened, home)
+
     def _press_button(self, data: mjx.Data) -> mjx.Data:
         cage = self.cage
         pos = data.qpos[jnp.asarray(self.goal_qpos)]
         offset = jnp.abs(pos - jnp.asarray(cage.button_center))
         pressed = jnp.all(offset <= jnp.asarray(cage.button_half_size))
-        home = jnp.asarray(self.home_mocap_pos)
-        ids = jnp.asarray(cage.wall_mocap_ids)
-        opened = data.mocap_pos.at[ids].set(home[ids] * cage.open_scale)
-        return data.replace(mocap_pos=jnp.where(pressed, opened, data.mocap_pos))
+        return data.replace(mocap_pos=jnp.where(pressed, self._wall_positions(True), data.mocap_pos))
 
 
 def tree_where(condition: jax.Array, on_true, on_false):

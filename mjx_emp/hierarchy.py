@@ -21,6 +21,11 @@ compiled batch sizes that holds them (the full batch when most need one).
 Goals are absolute points in goal space; a level i > 0 policy returns the subgoal
 relative to the current h(s), as the paper's policies output a point of the child's
 goal-space box around the current state.
+
+The root (the level whose episodes restart) is data, not structure: the carry always
+holds all k levels and levels above the root stay idle. One compiled rollout therefore
+serves training at every level, which keeps a whole curriculum epoch down to a single
+copy of the physics in the compiled program.
 """
 
 from __future__ import annotations
@@ -40,9 +45,11 @@ Params = Any
 # (params, obs, goal, key) -> action, for ONE environment. Level 0 returns a primitive
 # action in [-1, 1]^nu; level i > 0 returns a subgoal relative to h(s) (goal-space size).
 LevelPolicy = Callable[[Params, jax.Array, jax.Array, jax.Array], jax.Array]
-# (start_params, key) -> (env state, root goal), for ONE environment: where and with which
-# goal a new root-level episode begins (e.g. a start-state buffer and a goal-space sample).
-StartFn = Callable[[Any, jax.Array], tuple[EnvState, jax.Array]]
+# (start_params, key) -> (env state, root goal, info), for ONE environment: where and with
+# which goal a new root-level episode begins (e.g. a start-state buffer and a goal-space
+# sample). ``info`` is any pytree; it is carried with the episode and handed back in the
+# episode's :class:`EpisodeEnd` (the goal-space learner keeps its noise and box there).
+StartFn = Callable[[Any, jax.Array], tuple[EnvState, jax.Array, Any]]
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -82,12 +89,32 @@ class Transition:
 
 
 @struct.dataclass
+class EpisodeEnd:
+    """One finished root episode per valid row, stacked as [T, B, ...].
+
+    ``info`` is what the start function returned for the episode, ``final_obs`` the
+    observation s_n it ended in, ``reached`` whether h(s_n) was within eps of the root
+    goal, ``index`` how many root episodes the environment finished before this one
+    since :func:`init_rollout` (0 for its first). Episodes cut short by a physics reset
+    are not valid.
+    """
+
+    info: Any
+    final_obs: jax.Array
+    reached: jax.Array
+    index: jax.Array
+    valid: jax.Array
+
+
+@struct.dataclass
 class RolloutState:
     """Batched environments plus the per-level controller state carried between steps.
 
-    Tuples are indexed by level 0..root. ``issued_obs[i]``/``issued_action[i]`` hold the
-    observation and action with which level i's current action began (for level 0 they
-    are refreshed every step).
+    Tuples are indexed by level 0..k-1; levels above ``root`` are idle.
+    ``issued_obs[i]``/``issued_action[i]`` hold the observation and action with which
+    level i's current action began (for level 0 they are refreshed every step).
+    ``episode`` is the start info of each environment's current root episode and
+    ``episodes_done`` counts the root episodes each environment has finished.
     """
 
     env: EnvState
@@ -95,6 +122,9 @@ class RolloutState:
     counts: tuple[jax.Array, ...]
     issued_obs: tuple[jax.Array, ...]
     issued_action: tuple[jax.Array, ...]
+    root: jax.Array
+    episode: Any
+    episodes_done: jax.Array
     key: jax.Array
 
 
@@ -112,13 +142,13 @@ class RolloutStats:
 def default_start(env: Env, goal_half_width: float) -> StartFn:
     """Start at the home pose with a root goal uniform in a box of half-width around it."""
 
-    def start(_: Any, key: jax.Array) -> tuple[EnvState, jax.Array]:
+    def start(_: Any, key: jax.Array) -> tuple[EnvState, jax.Array, tuple]:
         reset_key, goal_key = jax.random.split(key)
         state = env.reset(reset_key)
         offset = jax.random.uniform(
             goal_key, (env.goal_size,), minval=-goal_half_width, maxval=goal_half_width
         )
-        return state, env.goal_of(state) + offset
+        return state, env.goal_of(state) + offset, ()
 
     return start
 
@@ -180,7 +210,7 @@ def _decide(
 def _issue_subgoals(
     h: Hierarchy,
     params: tuple[Params, ...],
-    root: int,
+    root: jax.Array,
     env_state: EnvState,
     goals: list,
     issued_obs: list,
@@ -188,7 +218,7 @@ def _issue_subgoals(
     finished: list,
     keys: jax.Array,
 ) -> list:
-    """Top-down: each level i whose child finished gives the child its next subgoal.
+    """Top-down: each level i <= root whose child finished gives the child its next subgoal.
 
     Updates the per-level lists ``goals``, ``issued_obs`` and ``issued_action`` in place
     (they are the scan step's local working copies) and returns decisions per level.
@@ -196,9 +226,9 @@ def _issue_subgoals(
     env = h.env
     obs = jax.vmap(env.observe)(env_state)
     pos = jax.vmap(env.goal_of)(env_state)
-    decisions = [jnp.zeros((), jnp.int32) for _ in range(root + 1)]
-    for i in range(root, 0, -1):
-        need = finished[i - 1]
+    decisions = [jnp.zeros((), jnp.int32) for _ in range(h.k)]
+    for i in range(h.k - 1, 0, -1):
+        need = finished[i - 1] & (i <= root)
         z, decisions[i] = _decide(
             h.policies[i], params[i], obs, goals[i], keys[i], need, issued_action[i]
         )
@@ -215,48 +245,60 @@ def init_rollout(
     start_params: Any,
     key: jax.Array,
     batch_size: int,
-    root: int | None = None,
+    root: int | jax.Array | None = None,
 ) -> RolloutState:
-    """Start ``batch_size`` episodes of the agent rooted at level ``root`` (default: the top)."""
+    """Start ``batch_size`` episodes of the agent rooted at level ``root`` (default: the top).
+
+    ``root`` may be a traced integer: the rollout's compiled program does not depend on it.
+    """
     root = h.k - 1 if root is None else root
     _check_root(h, root)
+    root = jnp.asarray(root, jnp.int32)
     env = h.env
     key, start_key, level_key = jax.random.split(key, 3)
-    env_state, root_goal = jax.vmap(start, in_axes=(None, 0))(
+    env_state, root_goal, info = jax.vmap(start, in_axes=(None, 0))(
         start_params, jax.random.split(start_key, batch_size)
     )
     obs = jax.vmap(env.observe)(env_state)
-    goals = [jnp.zeros((batch_size, env.goal_size), obs.dtype) for _ in range(root)] + [root_goal]
-    issued_obs = [obs for _ in range(root + 1)]
+    zeros_goal = jnp.zeros((batch_size, env.goal_size), obs.dtype)
+    goals = [jnp.where(root == i, root_goal, zeros_goal) for i in range(h.k)]
+    issued_obs = [obs for _ in range(h.k)]
     issued_action = [jnp.zeros((batch_size, env.action_size), obs.dtype)] + [
-        jnp.zeros((batch_size, env.goal_size), obs.dtype) for _ in range(root)
+        zeros_goal for _ in range(h.k - 1)
     ]
-    everyone = [jnp.ones(batch_size, bool) for _ in range(root + 1)]
+    everyone = [jnp.ones(batch_size, bool) for _ in range(h.k)]
     _issue_subgoals(
         h, params, root, env_state, goals, issued_obs, issued_action, everyone,
-        _level_keys(level_key, batch_size, root + 1),
+        _level_keys(level_key, batch_size, h.k),
     )
     return RolloutState(
         env=env_state,
         goals=tuple(goals),
-        counts=tuple(jnp.zeros(batch_size, jnp.int32) for _ in range(root + 1)),
+        counts=tuple(jnp.zeros(batch_size, jnp.int32) for _ in range(h.k)),
         issued_obs=tuple(issued_obs),
         issued_action=tuple(issued_action),
+        root=root,
+        episode=info,
+        episodes_done=jnp.zeros(batch_size, jnp.int32),
         key=key,
     )
 
 
-def _check_root(h: Hierarchy, root: int) -> None:
-    if not 0 <= root < h.k:
+def _check_root(h: Hierarchy, root: int | jax.Array) -> None:
+    """Reject a concrete root outside 0..k-1 (a traced root is the caller's promise)."""
+    if isinstance(root, jax.core.Tracer):
+        return
+    if not 0 <= int(root) < h.k:
         raise ConfigError(f"root must be a level in 0..{h.k - 1}; got {root}")
 
 
-def _scan_step(h, params, start, start_params, root, state: RolloutState, _):
+def _scan_step(h, params, start, start_params, state: RolloutState, _):
     """One primitive step of every environment: act, simulate, hand back, restart, re-issue."""
     env = h.env
+    root = state.root
     batch = state.counts[0].shape[0]
     key, policy_key, start_key = jax.random.split(state.key, 3)
-    keys = _level_keys(policy_key, batch, root + 1)
+    keys = _level_keys(policy_key, batch, h.k)
     goals, counts = list(state.goals), list(state.counts)
     issued_obs, issued_action = list(state.issued_obs), list(state.issued_action)
 
@@ -270,38 +312,53 @@ def _scan_step(h, params, start, start_params, root, state: RolloutState, _):
     pos = jax.vmap(env.goal_of)(env_state)
 
     # 2. Bottom-up: levels whose action completed count it and check their goal.
-    transitions, finished = [], []
+    transitions, finished, reached_by_level = [], [], []
     completed = jnp.ones(batch, bool)
-    for i in range(root + 1):
+    for i in range(h.k):
+        completed = completed & (i <= root)
         count = counts[i] + completed.astype(jnp.int32)
-        reached = jnp.linalg.norm(pos - goals[i], axis=-1) < h.eps[i]
+        reached = completed & (jnp.linalg.norm(pos - goals[i], axis=-1) < h.eps[i])
         done = completed & (reached | (count >= h.n[i]) | broke)
         transitions.append(
             Transition(
                 obs=issued_obs[i], goal=goals[i], action=issued_action[i], next_obs=next_obs,
-                reached=completed & reached, final=done, valid=completed & ~broke,
+                reached=reached, final=done, valid=completed & ~broke,
             )
         )
         counts[i] = jnp.where(done, 0, count)
         finished.append(done)
+        reached_by_level.append(reached)
         completed = done
-    episode_over = finished[root]
+    episode_over = jnp.stack(finished)[root]
+    episode_end = EpisodeEnd(
+        info=state.episode,
+        final_obs=next_obs,
+        reached=jnp.stack(reached_by_level)[root],
+        index=state.episodes_done,
+        valid=episode_over & ~broke,
+    )
 
     # 3. Environments whose root episode ended start a new one in the same step.
     def restart(args):
-        env_state, root_goal = args
-        fresh, fresh_goal = jax.vmap(start, in_axes=(None, 0))(
+        env_state, goals, episode = args
+        fresh, fresh_goal, fresh_info = jax.vmap(start, in_axes=(None, 0))(
             start_params, jax.random.split(start_key, batch)
         )
         fresh = fresh.replace(nan_resets=env_state.nan_resets)
+        goals = tuple(
+            jnp.where((episode_over & (root == i))[:, None], fresh_goal, g)
+            for i, g in enumerate(goals)
+        )
         return (
             tree_where(episode_over, fresh, env_state),
-            jnp.where(episode_over[:, None], fresh_goal, root_goal),
+            goals,
+            tree_where(episode_over, fresh_info, episode),
         )
 
-    env_state, goals[root] = jax.lax.cond(
-        episode_over.any(), restart, lambda args: args, (env_state, goals[root])
+    env_state, goals, episode = jax.lax.cond(
+        episode_over.any(), restart, lambda args: args, (env_state, tuple(goals), state.episode)
     )
+    goals = list(goals)
 
     # 4. Top-down: parents of finished levels issue the next subgoals.
     decisions = _issue_subgoals(
@@ -309,9 +366,11 @@ def _scan_step(h, params, start, start_params, root, state: RolloutState, _):
     )
     new_state = RolloutState(
         env=env_state, goals=tuple(goals), counts=tuple(counts),
-        issued_obs=tuple(issued_obs), issued_action=tuple(issued_action), key=key,
+        issued_obs=tuple(issued_obs), issued_action=tuple(issued_action), root=root,
+        episode=episode, episodes_done=state.episodes_done + episode_over.astype(jnp.int32),
+        key=key,
     )
-    per_step = (tuple(transitions), episode_over.sum(), tuple(decisions))
+    per_step = (tuple(transitions), episode_end, episode_over.sum(), tuple(decisions))
     return new_state, per_step
 
 
@@ -322,22 +381,24 @@ def rollout(
     start_params: Any,
     state: RolloutState,
     num_steps: int,
-) -> tuple[RolloutState, tuple[Transition, ...], RolloutStats]:
-    """Advance every environment ``num_steps`` primitive actions; return per-level transitions.
+) -> tuple[RolloutState, tuple[Transition, ...], EpisodeEnd, RolloutStats]:
+    """Advance every environment ``num_steps`` primitive actions.
 
-    The root level is the one ``state`` was initialised with. Jit with ``h``, ``start``
-    and ``num_steps`` static (see :func:`jit_rollout`); everything else may change between
-    calls without recompiling. Static arguments hash by identity, so keep one ``Hierarchy``
-    and one ``start`` function object per agent: a freshly built closure compiles anew.
+    Returns the new state, per-level transitions (all k levels; those above the root are
+    never valid), the root episodes that ended, and totals. Jit with ``h``, ``start`` and
+    ``num_steps`` static (see :func:`jit_rollout`); everything else, the root included,
+    may change between calls without recompiling. Static arguments hash by identity, so
+    keep one ``Hierarchy`` and one ``start`` function object per agent: a freshly built
+    closure compiles anew.
     """
-    root = len(state.counts) - 1
-    _check_root(h, root)
     nan_before = state.env.nan_resets.sum()
 
     def body(carry, x):
-        return _scan_step(h, params, start, start_params, root, carry, x)
+        return _scan_step(h, params, start, start_params, carry, x)
 
-    state, (transitions, finished, decisions) = jax.lax.scan(body, state, None, length=num_steps)
+    state, (transitions, episodes, finished, decisions) = jax.lax.scan(
+        body, state, None, length=num_steps
+    )
     batch = state.counts[0].shape[0]
     steps = jnp.asarray(num_steps * batch, jnp.int32)
     stats = RolloutStats(
@@ -347,8 +408,15 @@ def rollout(
         nan_resets=state.env.nan_resets.sum() - nan_before,
         decisions=tuple(d.sum(dtype=jnp.int32) for d in decisions),
     )
-    return state, transitions, stats
+    return state, transitions, episodes, stats
 
 
-jit_init_rollout = jax.jit(init_rollout, static_argnames=("h", "start", "batch_size", "root"))
+_jit_init_rollout = jax.jit(init_rollout, static_argnames=("h", "start", "batch_size"))
+
+
+def jit_init_rollout(h, params, start, start_params, key, batch_size, root=None) -> RolloutState:
+    """Jitted :func:`init_rollout`; a concrete ``root`` is checked before tracing."""
+    if root is not None:
+        _check_root(h, root)
+    return _jit_init_rollout(h, params, start, start_params, key, batch_size, root)
 jit_rollout = jax.jit(rollout, static_argnames=("h", "start", "num_steps"))

@@ -1,60 +1,121 @@
-"""Neural networks for the goal-conditioned policies.
+"""Neural networks of a Hierarchical Empowerment agent.
 
-A deterministic goal-conditioned policy maps (observation, goal) through an MLP and a
-tanh, then scales and shifts the result into its action box: the primitive action
-bounds at level 0, the child's goal-space box (half-widths and shift) above it.
+Per level there is a deterministic goal-conditioned actor pi(s, z) with its critic
+Q(s, z, a), and a goal-space actor mu(s0) with its critic R(s0, noise, a). Following
+the paper's architecture figure, a goal-conditioned actor squashes its output with a
+tanh, then scales and shifts it into its action box: the primitive bounds [-1, 1] at
+level 0, the child's goal-space box mu_{i-1}(s) (half-widths and shift, relative to
+h(s)) above it. Goals enter every network as the offset goal - h(s), so what a skill
+does is expressed where it is.
 """
 
 from __future__ import annotations
 
+import math
+
 from collections.abc import Callable, Sequence
+from typing import Any
 
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
+from flax import struct
 
 from mjx_emp.envs import Env
 from mjx_emp.hierarchy import LevelPolicy, Params
 
+# (box_params, obs) -> (shift, half_width): the box a level's actions are squashed into.
+BoxFn = Callable[[Any, jax.Array], tuple[jax.Array, jax.Array]]
+
 
 class MLP(nn.Module):
-    """Plain ReLU MLP with a linear output layer."""
+    """ReLU MLP with a linear output layer; ``out_scale`` shrinks the output layer's init."""
 
     hidden: Sequence[int]
     out: int
+    out_scale: float = 1.0
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
         for width in self.hidden:
             x = nn.relu(nn.Dense(width)(x))
-        return nn.Dense(self.out)(x)
+        init = nn.initializers.variance_scaling(self.out_scale, "fan_avg", "uniform")
+        return nn.Dense(self.out, kernel_init=init)(x)
 
 
-def goal_policy(
-    obs_size: int,
-    goal_size: int,
-    action_size: int,
-    hidden: Sequence[int] = (256, 256),
-    half_width: float | jax.Array = 1.0,
-    shift: float | jax.Array = 0.0,
-) -> tuple[LevelPolicy, Callable[[jax.Array], Params]]:
-    """A fixed-box deterministic goal-conditioned policy and its initialiser.
+@struct.dataclass
+class LevelParams:
+    """What a level policy reads at run time: its actor, its action box, its noise.
 
-    Returns ``(policy, init)`` with ``policy(params, obs, goal, key) -> action`` in
-    ``shift ± half_width`` and ``init(key) -> params``. The goal enters as its offset
-    from nothing in particular: the MLP sees (obs, goal) and learns the relation.
+    ``box`` is the child level's goal-space actor params (or a fixed box, or None at
+    level 0); ``noise`` is the exploration std in units of the box half-width.
     """
-    net = MLP(tuple(hidden), action_size)
 
-    def policy(params: Params, obs: jax.Array, goal: jax.Array, key: jax.Array) -> jax.Array:
-        del key  # deterministic
-        raw = net.apply(params, jnp.concatenate([obs, goal], axis=-1))
-        return jnp.tanh(raw) * half_width + shift
+    actor: Params
+    box: Any
+    noise: jax.Array
 
-    def init(key: jax.Array) -> Params:
-        return net.init(key, jnp.zeros(obs_size + goal_size))
 
-    return policy, init
+def goal_features(env: Env, obs: jax.Array, goal: jax.Array) -> jax.Array:
+    """Network input for (state, goal): the state's features and the offset goal - h(s)."""
+    return jnp.concatenate([env.features(obs), goal - env.goal_of_obs(obs)], axis=-1)
+
+
+def primitive_box(_: Any, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Level 0's action box: the primitive bounds [-1, 1]."""
+    del obs
+    return jnp.zeros(()), jnp.ones(())
+
+
+def fixed_box(box: jax.Array, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """A state-independent box given as (shift, half_width) stacked in ``box`` [2, d]."""
+    del obs
+    return box[0], box[1]
+
+
+def level_policy(env: Env, actor: MLP, box_fn: BoxFn) -> LevelPolicy:
+    """A deterministic goal-conditioned policy (plus optional Gaussian exploration).
+
+    action = clip(tanh(f(s, z)) + noise * N(0, 1), -1, 1) * half_width + shift, with
+    (shift, half_width) = box_fn(params.box, s). With ``noise`` = 0 it is the paper's
+    pi_theta; the clip keeps noisy actions inside the box.
+    """
+
+    def policy(params: LevelParams, obs: jax.Array, goal: jax.Array, key: jax.Array) -> jax.Array:
+        shift, half_width = box_fn(params.box, obs)
+        unit = jnp.tanh(actor.apply(params.actor, goal_features(env, obs, goal)))
+        unit = unit + params.noise * jax.random.normal(key, unit.shape, unit.dtype)
+        return jnp.clip(unit, -1.0, 1.0) * half_width + shift
+
+    return policy
+
+
+class GoalSpaceActor(nn.Module):
+    """mu(s0) -> goal-space action (shift, log half-width) per goal dimension.
+
+    The output layer starts near zero, so every level begins with a box of
+    ``init_half_width`` centred on h(s0); log half-widths keep the entropy reward
+    linear in the box size (the paper's appendix). Both halves are softly bounded by
+    ``max_half_width`` (|shift| and half-width): well inside the bound the output is the
+    raw network's, near it the gradient fades, so a critic that extrapolates at a rare
+    start state cannot send goals to infinity.
+    """
+
+    hidden: Sequence[int]
+    goal_size: int
+    init_half_width: float
+    max_half_width: float
+
+    @nn.compact
+    def __call__(self, obs: jax.Array) -> jax.Array:
+        raw = MLP(tuple(self.hidden), 2 * self.goal_size, out_scale=1e-4)(obs)
+        shift, log_half_width = raw[..., : self.goal_size], raw[..., self.goal_size :]
+        shift = self.max_half_width * jnp.tanh(shift / self.max_half_width)
+        # log_hw = log_max - softplus(c - raw), with c chosen so that raw = 0 gives init_half_width.
+        log_max = math.log(self.max_half_width)
+        c = math.log(math.expm1(log_max - math.log(self.init_half_width)))
+        log_half_width = log_max - jax.nn.softplus(c - log_half_width)
+        return jnp.concatenate([shift, log_half_width], axis=-1)
 
 
 def mlp_agent(
@@ -63,18 +124,24 @@ def mlp_agent(
     hidden: Sequence[int],
     subgoal_half_widths: Sequence[float],
     key: jax.Array,
-) -> tuple[tuple[LevelPolicy, ...], tuple[Params, ...]]:
-    """Random-init MLP policies for a k-level agent and their params.
+) -> tuple[tuple[LevelPolicy, ...], tuple[LevelParams, ...]]:
+    """Random-init MLP policies for a k-level agent with fixed subgoal boxes, and their params.
 
     Level 0 outputs primitive actions in [-1, 1]; level i > 0 outputs subgoals in a box of
-    half-width ``subgoal_half_widths[i - 1]`` around h(s). Params of level i come from
-    ``fold_in(key, i)``.
+    half-width ``subgoal_half_widths[i - 1]`` around h(s). Used to exercise and benchmark
+    the rollout without training. Params of level i come from ``fold_in(key, i)``.
     """
     policies, params = [], []
     for level in range(k):
         out = env.action_size if level == 0 else env.goal_size
-        width = 1.0 if level == 0 else subgoal_half_widths[level - 1]
-        policy, init = goal_policy(env.obs_size, env.goal_size, out, hidden, half_width=width)
-        policies.append(policy)
-        params.append(init(jax.random.fold_in(key, level)))
+        net = MLP(tuple(hidden), out)
+        if level == 0:
+            policies.append(level_policy(env, net, primitive_box))
+            box = None
+        else:
+            policies.append(level_policy(env, net, fixed_box))
+            half_width = jnp.full(env.goal_size, subgoal_half_widths[level - 1])
+            box = jnp.stack([jnp.zeros(env.goal_size), half_width])
+        actor = net.init(jax.random.fold_in(key, level), jnp.zeros(env.feature_size + env.goal_size))
+        params.append(LevelParams(actor=actor, box=box, noise=jnp.zeros(())))
     return tuple(policies), tuple(params)

@@ -16,7 +16,7 @@ from mjx_emp.hierarchy import (
     jit_init_rollout,
     jit_rollout,
 )
-from mjx_emp.networks import goal_policy, mlp_agent
+from mjx_emp.networks import mlp_agent
 from mjx_emp.scripted import bounded_hop, point_mass_pd
 
 ENV = make_env("point_mass")
@@ -33,7 +33,8 @@ def small_agent(k: int):
 
 def run(h, params, key, batch, steps, root=None, start=START):
     state = jit_init_rollout(h, params, start, None, key, batch, root)
-    return (state,) + jit_rollout(h, params, start, None, state, steps)
+    new_state, transitions, _, stats = jit_rollout(h, params, start, None, state, steps)
+    return state, new_state, transitions, stats
 
 
 CONTROLLED = Hierarchy(ENV, (steer, hop), n=(20, 8), eps=(0.1, 0.3))
@@ -117,21 +118,62 @@ def test_controlled_run_respects_n_at_both_levels():
     assert run_lengths(t1, 8) <= 8
 
 
-def test_rooted_at_a_lower_level_runs_only_levels_up_to_root():
+def test_rooted_at_a_lower_level_leaves_levels_above_root_idle():
     policies, params = small_agent(3)
     h = Hierarchy(ENV, policies, n=(5, 4, 3), eps=(0.05, 0.1, 0.2))
     goal = jnp.array([1.0, -1.0])
 
     def fixed_goal_start(_, key):
-        return ENV.reset(key), goal
+        return ENV.reset(key), goal, ()
 
     _, _, transitions, stats = run(h, params, jax.random.key(3), 4, 60, root=1, start=fixed_goal_start)
-    assert len(transitions) == 2
+    assert len(transitions) == 3
+    assert not np.asarray(transitions[2].valid).any() and int(stats.decisions[2]) == 0
     root_goals = np.asarray(transitions[1].goal)[np.asarray(transitions[1].valid)]
     assert len(root_goals) > 0 and np.all(root_goals == np.array([1.0, -1.0]))
     assert int(stats.decisions[1]) > 0
     with pytest.raises(ValueError, match="root"):
         jit_init_rollout(h, params, fixed_goal_start, None, jax.random.key(0), 4, 3)
+
+
+def test_root_is_data_one_compiled_program_serves_every_level():
+    traces = []
+
+    def counting_hop(params, obs, goal, key):
+        traces.append(1)
+        return hop(params, obs, goal, key)
+
+    h = Hierarchy(ENV, (steer, counting_hop), n=(10, 5), eps=(0.1, 0.3))
+    state = jit_init_rollout(h, (None, None), START, None, jax.random.key(0), 8, root=0)
+    state, (t0, t1), episodes, _ = jit_rollout(h, (None, None), START, None, state, 40)
+    after_first = len(traces)
+    assert not np.asarray(t1.valid).any()
+    # Rooted at level 0, every level-0 pursuit is an episode.
+    np.testing.assert_array_equal(episodes.valid, t0.final & t0.valid)
+    state = jit_init_rollout(h, (None, None), START, None, jax.random.key(0), 8, root=1)
+    state, (t0, t1), episodes, _ = jit_rollout(h, (None, None), START, None, state, 40)
+    assert len(traces) == after_first
+    np.testing.assert_array_equal(episodes.valid, t1.final & t1.valid)
+
+
+def test_episode_end_returns_the_start_info_and_counts_episodes():
+    def numbered_start(_, key):
+        state, goal, _ = START(None, key)
+        return state, goal, {"goal": goal, "tag": jax.random.uniform(key)}
+
+    state = jit_init_rollout(CONTROLLED, (None, None), numbered_start, None, jax.random.key(2), 16)
+    first_tags = np.asarray(state.episode["tag"])
+    _, (_, t1), episodes, stats = jit_rollout(CONTROLLED, (None, None), numbered_start, None, state, 200)
+    valid = np.asarray(episodes.valid)
+    assert valid.sum() == int(stats.episodes_finished) > 16
+    # The info handed back is that of the episode that ended: its root goal.
+    np.testing.assert_array_equal(np.asarray(episodes.info["goal"])[valid], np.asarray(t1.goal)[valid])
+    np.testing.assert_array_equal(np.asarray(episodes.reached)[valid], np.asarray(t1.reached)[valid])
+    index = np.asarray(episodes.index)
+    for env in range(16):
+        ended = np.nonzero(valid[:, env])[0]
+        np.testing.assert_array_equal(index[ended, env], np.arange(len(ended)))
+        assert np.asarray(episodes.info["tag"])[ended[0], env] == first_tags[env]
 
 
 def test_deterministic_under_fixed_key_and_key_matters():
@@ -151,8 +193,8 @@ def test_batch_members_are_independent():
     state = jit_init_rollout(h, params, START, None, jax.random.key(4), 4)
     qpos = state.env.data.qpos.at[0].set(jnp.array([9.0, -9.0]))
     moved = state.replace(env=state.env.replace(data=state.env.data.replace(qpos=qpos)))
-    _, base, _ = jit_rollout(h, params, START, None, state, 50)
-    _, other, _ = jit_rollout(h, params, START, None, moved, 50)
+    _, base, _, _ = jit_rollout(h, params, START, None, state, 50)
+    _, other, _, _ = jit_rollout(h, params, START, None, moved, 50)
     for x, y in zip(jax.tree.leaves(base), jax.tree.leaves(other)):
         x, y = np.asarray(x), np.asarray(y)
         np.testing.assert_allclose(x[:, 1:], y[:, 1:], rtol=1e-5, atol=1e-5)
@@ -164,7 +206,7 @@ def test_nan_in_one_env_invalidates_its_step_and_restarts_it():
     state = jit_init_rollout(h, (None, None), START, None, jax.random.key(5), 4)
     qvel = state.env.data.qvel.at[2].set(jnp.nan)
     state = state.replace(env=state.env.replace(data=state.env.data.replace(qvel=qvel)))
-    new_state, (t0, t1), stats = jit_rollout(h, (None, None), START, None, state, 10)
+    new_state, (t0, t1), _, stats = jit_rollout(h, (None, None), START, None, state, 10)
     assert int(stats.nan_resets) == 1
     assert int(new_state.env.nan_resets[2]) == 1
     assert int(stats.useful_steps) == 4 * 10 - 1
@@ -182,19 +224,18 @@ def test_second_call_does_not_recompile():
 
     h = Hierarchy(ENV, (counting_steer, hop), n=(10, 5), eps=(0.1, 0.3))
     state = jit_init_rollout(h, (None, None), START, None, jax.random.key(0), 8)
-    state, _, _ = jit_rollout(h, (None, None), START, None, state, 20)
+    state, _, _, _ = jit_rollout(h, (None, None), START, None, state, 20)
     after_first = len(traces)
-    state, _, _ = jit_rollout(h, (None, None), START, None, state, 20)
+    state, _, _, _ = jit_rollout(h, (None, None), START, None, state, 20)
     state = jit_init_rollout(h, (None, None), START, None, jax.random.key(1), 8)
-    state, _, _ = jit_rollout(h, (None, None), START, None, state, 20)
+    state, _, _, _ = jit_rollout(h, (None, None), START, None, state, 20)
     assert len(traces) == after_first
 
 
 @pytest.mark.parametrize("count", [0, 1, 5, 8, 9, 31, 64])
 def test_gathered_decisions_equal_full_batch_decisions(count):
     batch = 64
-    policy, init = goal_policy(4, 2, 2, (16,))
-    params = init(jax.random.key(0))
+    (_, policy), (_, params) = mlp_agent(ENV, 2, (16,), (1.0,), jax.random.key(0))
     obs = jax.random.normal(jax.random.key(1), (batch, 4))
     goals = jax.random.normal(jax.random.key(2), (batch, 2))
     keys = jax.random.split(jax.random.key(3), batch)

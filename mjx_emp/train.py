@@ -1,0 +1,599 @@
+"""Phase 1 of Hierarchical Empowerment: curriculum epochs, entirely on device.
+
+One epoch (the paper's appendix) is, for every level from the bottom up: 10
+goal-conditioned iterations (collect experience at that level, then S=50 DDPG-style
+gradient steps) and one goal-space iteration (execute skills sampled from the noisy
+goal space, then S=10 SVG gradient steps). Before the levels train, the start-state
+buffers are refreshed by greedily chaining top-level skills from the initial state.
+
+The epoch is a single jitted call: a ``lax.scan`` over a schedule of (level, mode)
+items. Each item collects data with the same compiled k-level rollout (its root level
+is data) inside a ``lax.while_loop`` that runs until every environment has finished
+at least one episode at that level, and then runs the level's update through a
+``lax.switch``. So the physics appears once in the compiled program whatever k is.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+from typing import Any
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+from flax import struct
+
+from mjx_emp import gce
+from mjx_emp.buffers import ReplayBuffer, flatten_rows, replay_init, replay_insert, replay_sample
+from mjx_emp.config import TrainConfig, check_train_config
+from mjx_emp.envs import Env, make_env
+from mjx_emp.hierarchy import (
+    EpisodeEnd,
+    Hierarchy,
+    Params,
+    RolloutState,
+    Transition,
+    init_rollout,
+    rollout,
+)
+from mjx_emp.networks import (
+    MLP,
+    GoalSpaceActor,
+    LevelParams,
+    goal_features,
+    level_policy,
+    primitive_box,
+)
+
+# What a schedule item does.
+MODE_STARTS, MODE_GC, MODE_GS, MODE_EVAL = 0, 1, 2, 3
+MODE_NAMES = {MODE_STARTS: "starts", MODE_GC: "gc", MODE_GS: "gs", MODE_EVAL: "eval"}
+# Offset of the start-state chain's goal: never reached, the chain ends on its action count.
+_UNREACHABLE = 1e6
+
+
+@struct.dataclass
+class GCLearner:
+    """A level's goal-conditioned actor-critic with target networks and Adam states."""
+
+    actor: Params
+    critic: Params
+    target_actor: Params
+    target_critic: Params
+    actor_opt: optax.OptState
+    critic_opt: optax.OptState
+
+
+@struct.dataclass
+class GSLearner:
+    """A level's goal-space actor mu(s0) and critic R(s0, noise, a) with Adam states."""
+
+    actor: Params
+    critic: Params
+    actor_opt: optax.OptState
+    critic_opt: optax.OptState
+
+
+@struct.dataclass
+class GCRow:
+    """One stored goal-conditioned transition; reward and discount are derived on sampling."""
+
+    obs: jax.Array
+    goal: jax.Array
+    action: jax.Array
+    next_obs: jax.Array
+    reached: jax.Array
+
+
+@struct.dataclass
+class GSRow:
+    """One stored goal-space sample (s0, noise, a, r)."""
+
+    obs: jax.Array
+    noise: jax.Array
+    action: jax.Array
+    reward: jax.Array
+
+
+@struct.dataclass
+class EpisodeInfo:
+    """How a root episode began: start observation, box noise and (noisy) goal-space action."""
+
+    obs: jax.Array
+    noise: jax.Array
+    action: jax.Array
+
+
+@struct.dataclass
+class StartParams:
+    """Run-time inputs of the start function: which level, its buffers and goal spaces."""
+
+    root: jax.Array
+    goal_noise: jax.Array
+    starts: tuple[ReplayBuffer, ...]
+    gs_actors: tuple[Params, ...]
+
+
+@struct.dataclass
+class TrainState:
+    """Everything phase 1 learns or remembers; a pytree of arrays, so it checkpoints whole."""
+
+    gc: tuple[GCLearner, ...]
+    gs: tuple[GSLearner, ...]
+    replay: tuple[ReplayBuffer, ...]
+    gs_replay: tuple[ReplayBuffer, ...]
+    starts: tuple[ReplayBuffer, ...]
+    chain: RolloutState
+    key: jax.Array
+    epoch: jax.Array
+    env_steps: jax.Array
+
+
+@struct.dataclass
+class ItemStats:
+    """What one schedule item did: its level and mode, the data it saw, its losses."""
+
+    root: jax.Array
+    mode: jax.Array
+    env_steps: jax.Array
+    transitions: jax.Array
+    episodes: jax.Array
+    reached: jax.Array
+    final_distance: jax.Array
+    critic_loss: jax.Array
+    actor_loss: jax.Array
+
+
+def epoch_schedule(cfg: TrainConfig) -> np.ndarray:
+    """[(level, mode)] of one epoch: start-state refresh, then per level GC, GS and eval items."""
+    items = [(cfg.k, MODE_STARTS)]
+    for level in range(cfg.k):
+        items += [(level, MODE_GC)] * cfg.gc_iterations
+        items += [(level, MODE_GS)] * cfg.gs_iterations
+        items += [(level, MODE_EVAL)] * cfg.eval_iterations
+    return np.asarray(items, np.int32)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Trainer:
+    """Static side of phase 1 for one config: env, networks, optimisers, the rollout agent.
+
+    Build it once per config (it is a static jit argument, hashed by identity) and drive
+    it with :meth:`init` and :meth:`train_epoch`.
+    """
+
+    cfg: TrainConfig
+    env: Env = dataclasses.field(init=False)
+    hierarchy: Hierarchy = dataclasses.field(init=False)
+
+    def __post_init__(self):
+        check_train_config(self.cfg)
+        env = make_env(self.cfg.env)
+        object.__setattr__(self, "env", env)
+        policies = tuple(
+            level_policy(env, self.actor_net(level), primitive_box if level == 0 else self._learned_box(level - 1))
+            for level in range(self.cfg.k)
+        ) + (self._chooser,)
+        hierarchy = Hierarchy(
+            env, policies, n=tuple(self.cfg.n) + (self.cfg.start_chain,),
+            eps=tuple(self.cfg.eps) + (self.cfg.eps[-1],),
+        )
+        object.__setattr__(self, "hierarchy", hierarchy)
+
+    # ---- networks -------------------------------------------------------------------
+    def action_size(self, level: int) -> int:
+        """Primitive action size at level 0, goal-space size above."""
+        return self.env.action_size if level == 0 else self.env.goal_size
+
+    def actor_net(self, level: int) -> MLP:
+        return MLP(tuple(self.cfg.hidden), self.action_size(level))
+
+    @functools.cached_property
+    def critic_net(self) -> MLP:
+        return MLP(tuple(self.cfg.hidden), 1)
+
+    def gs_actor_net(self, level: int) -> GoalSpaceActor:
+        c = self.cfg
+        return GoalSpaceActor(tuple(c.hidden), self.env.goal_size, c.init_half_width[level], c.max_half_width[level])
+
+    def goal_space_action(self, level: int, params: Params, obs: jax.Array) -> jax.Array:
+        """mu_level(s0): the (shift, log half-width) of the level's goal space at ``obs``."""
+        return self.gs_actor_net(level).apply(params, self.env.features(obs))
+
+    def _learned_box(self, level: int):
+        def box(params: Params, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
+            shift, log_half_width = gce.split_goal_space_action(self.goal_space_action(level, params, obs))
+            return shift, jnp.exp(log_half_width)
+
+        return box
+
+    def _chooser(self, params: Params, obs: jax.Array, goal: jax.Array, key: jax.Array) -> jax.Array:
+        """The start-state chain's top: a skill drawn uniformly from the top goal space."""
+        del goal
+        action = self.goal_space_action(self.cfg.k - 1, params, obs)
+        return gce.sample_goal(gce.goal_noise(key, (self.env.goal_size,)), action)
+
+    def q_value(self, params: Params, obs: jax.Array, goal: jax.Array, action: jax.Array) -> jax.Array:
+        """Q(s, z, a) of a goal-conditioned critic."""
+        x = jnp.concatenate([goal_features(self.env, obs, goal), action], axis=-1)
+        return self.critic_net.apply(params, x)[..., 0]
+
+    def gs_value(self, params: Params, obs: jax.Array, noise: jax.Array, action: jax.Array) -> jax.Array:
+        """R(s0, noise, a) of a goal-space critic."""
+        x = jnp.concatenate([self.env.features(obs), noise, action], axis=-1)
+        return self.critic_net.apply(params, x)[..., 0]
+
+    @functools.cached_property
+    def optimizers(self) -> dict[str, optax.GradientTransformation]:
+        c = self.cfg
+        return {
+            "actor": optax.adam(c.actor_lr),
+            "critic": optax.adam(c.critic_lr),
+            "gs_actor": optax.adam(c.gs_actor_lr),
+            "gs_critic": optax.adam(c.gs_critic_lr),
+        }
+
+    # ---- state ----------------------------------------------------------------------
+    @functools.cached_property
+    def initial_obs(self) -> np.ndarray:
+        """Observation of the task's initial state (computed eagerly, a constant under jit)."""
+        with jax.ensure_compile_time_eval():
+            return np.asarray(self.env.observe(self.env.reset(jax.random.key(0))))
+
+    def init(self, key: jax.Array | None = None) -> TrainState:
+        """Fresh networks, empty replay buffers, start buffers holding the initial state."""
+        return _jit_init(self, jax.random.key(self.cfg.seed) if key is None else key)
+
+    def _init(self, key: jax.Array) -> TrainState:
+        env, cfg, opt = self.env, self.cfg, self.optimizers
+        obs, goal = jnp.asarray(self.initial_obs), jnp.zeros(env.goal_size)
+        gcs, gss, replay, gs_replay, starts = [], [], [], [], []
+        for level in range(cfg.k):
+            keys = jax.random.split(jax.random.fold_in(key, level), 4)
+            action = jnp.zeros(self.action_size(level))
+            actor = self.actor_net(level).init(keys[0], goal_features(env, obs, goal))
+            critic = self.critic_net.init(keys[1], jnp.concatenate([goal_features(env, obs, goal), action]))
+            gcs.append(GCLearner(actor, critic, actor, critic, opt["actor"].init(actor), opt["critic"].init(critic)))
+            gs_action = jnp.zeros(2 * env.goal_size)
+            gs_actor = self.gs_actor_net(level).init(keys[2], env.features(obs))
+            gs_critic = self.critic_net.init(keys[3], jnp.concatenate([env.features(obs), goal, gs_action]))
+            gss.append(GSLearner(gs_actor, gs_critic, opt["gs_actor"].init(gs_actor), opt["gs_critic"].init(gs_critic)))
+            replay.append(replay_init(GCRow(obs, goal, action, obs, jnp.zeros((), bool)), cfg.replay_capacity))
+            gs_replay.append(replay_init(GSRow(obs, goal, gs_action, jnp.zeros(())), cfg.gs_replay_capacity))
+            start_buffer = replay_init(obs, cfg.start_capacity)
+            starts.append(replay_insert(start_buffer, obs[None], jnp.ones(1, bool)))
+        key, chain_key = jax.random.split(jax.random.fold_in(key, cfg.k))
+        state = TrainState(
+            gc=tuple(gcs), gs=tuple(gss), replay=tuple(replay), gs_replay=tuple(gs_replay),
+            starts=tuple(starts), chain=None, key=key,
+            epoch=jnp.zeros((), jnp.int32), env_steps=jnp.zeros((), jnp.float32),
+        )
+        params, start_params = self._rollout_inputs(state, jnp.int32(cfg.k), jnp.int32(MODE_STARTS))
+        chain = init_rollout(self.hierarchy, params, self._start, start_params, chain_key, cfg.num_envs, cfg.k)
+        return state.replace(chain=chain)
+
+    # ---- data collection ------------------------------------------------------------
+    def _rollout_inputs(self, state: TrainState, root: jax.Array, mode: jax.Array):
+        """Per-level policy params (noise only on the trained level) and start params."""
+        cfg = self.cfg
+        params = tuple(
+            LevelParams(
+                actor=state.gc[level].actor,
+                box=None if level == 0 else state.gs[level - 1].actor,
+                noise=jnp.where((root == level) & (mode == MODE_GC), cfg.action_noise, 0.0),
+            )
+            for level in range(cfg.k)
+        ) + (state.gs[cfg.k - 1].actor,)
+        goal_noise = jnp.select([mode == MODE_GC, mode == MODE_GS], [cfg.goal_noise, cfg.gs_noise], 0.0)
+        start_params = StartParams(
+            root=root, goal_noise=goal_noise, starts=state.starts,
+            gs_actors=tuple(g.actor for g in state.gs),
+        )
+        return params, start_params
+
+    def _start(self, sp: StartParams, key: jax.Array):
+        """A new episode at level ``sp.root``: s0 from its start buffer, z from its noisy box.
+
+        Root k is the start-state chain: it begins at the initial state and its goal is
+        never reached.
+        """
+        env, k, d = self.env, self.cfg.k, self.env.goal_size
+        pick_key, box_key, noise_key, env_key = jax.random.split(key, 4)
+        candidates = [replay_sample(buf, pick_key, 1)[0] for buf in sp.starts]
+        s0 = jnp.stack(candidates + [jnp.asarray(self.initial_obs)])[sp.root]
+        state = env.restore(env_key, s0)
+        actions = [self.goal_space_action(level, p, s0) for level, p in enumerate(sp.gs_actors)]
+        action = jnp.stack(actions + [jnp.zeros(2 * d)])[sp.root]
+        shift, log_half_width = gce.split_goal_space_action(action)
+        jitter = sp.goal_noise * jax.random.normal(box_key, (2 * d,))
+        action = jnp.concatenate([shift + jitter[:d] * jnp.exp(log_half_width), log_half_width + jitter[d:]])
+        noise = gce.goal_noise(noise_key, (d,))
+        z = jnp.where(sp.root == k, _UNREACHABLE, gce.sample_goal(noise, action))
+        return state, env.goal_of_obs(s0) + z, EpisodeInfo(obs=s0, noise=noise, action=action)
+
+    def _max_chunks(self) -> jax.Array:
+        """Rollout calls that let every environment finish one episode at each root level."""
+        cfg = self.cfg
+        longest = np.cumprod(cfg.n)
+        return jnp.asarray([math.ceil(t / cfg.chunk_steps) + 1 for t in longest] + [cfg.start_chunks])
+
+    def _collect(self, state: TrainState, root: jax.Array, mode: jax.Array, key: jax.Array):
+        """Run the agent rooted at ``root`` and file what it saw into the right buffers.
+
+        GC: every valid root transition goes to the level's replay. GS: the first episode of
+        each environment goes to the goal-space replay. EVAL: nothing is stored. STARTS:
+        continues the greedy chain; the state each level got a new goal in is a start state.
+        """
+        cfg, env, h = self.cfg, self.env, self.hierarchy
+        params, start_params = self._rollout_inputs(state, root, mode)
+        is_chain = mode == MODE_STARTS
+        first = jax.lax.cond(
+            is_chain,
+            lambda: state.chain,
+            lambda: init_rollout(h, params, self._start, start_params, key, cfg.num_envs, root),
+        )
+        limit = self._max_chunks()[root]
+        zero = jnp.zeros((), jnp.float32)
+
+        def unfinished(carry):
+            rs, _, chunks, _ = carry
+            return (chunks < limit) & (is_chain | jnp.any(rs.episodes_done == 0))
+
+        def chunk(carry):
+            rs, buffers, chunks, totals = carry
+            replay, gs_replay, starts = buffers
+            rs, transitions, episodes, stats = rollout(h, params, self._start, start_params, rs, cfg.chunk_steps)
+            transitions = flatten_rows(transitions)
+            episodes = flatten_rows(episodes)
+            replay = tuple(
+                replay_insert(replay[i], _gc_row(transitions[i]), transitions[i].valid & (root == i) & (mode == MODE_GC))
+                for i in range(cfg.k)
+            )
+            first_episode = episodes.valid & (episodes.index == 0)
+            gs_replay = tuple(
+                replay_insert(gs_replay[i], self._gs_row(i, episodes), episodes.valid & (root == i) & (mode == MODE_GS))
+                for i in range(cfg.k)
+            )
+            starts = tuple(
+                replay_insert(starts[i], transitions[i + 1].obs, transitions[i + 1].valid & is_chain)
+                for i in range(cfg.k)
+            )
+            distance = jnp.linalg.norm(
+                env.goal_of_obs(episodes.final_obs)
+                - env.goal_of_obs(episodes.info.obs)
+                - gce.sample_goal(episodes.info.noise, episodes.info.action),
+                axis=-1,
+            )
+            root_valid = jnp.stack([t.valid for t in transitions])[root]
+            totals = (
+                totals[0] + stats.primitive_steps.astype(jnp.float32),
+                totals[1] + root_valid.sum(),
+                totals[2] + first_episode.sum(),
+                totals[3] + (first_episode & episodes.reached).sum(),
+                totals[4] + jnp.where(first_episode, distance, 0.0).sum(),
+            )
+            return rs, (replay, gs_replay, starts), chunks + 1, totals
+
+        carry = (first, (state.replay, state.gs_replay, state.starts), jnp.zeros((), jnp.int32),
+                 (zero, jnp.int32(0), jnp.int32(0), jnp.int32(0), zero))
+        rs, (replay, gs_replay, starts), _, totals = jax.lax.while_loop(unfinished, chunk, carry)
+        chain = jax.lax.cond(is_chain, lambda: rs, lambda: state.chain)
+        state = state.replace(
+            replay=replay, gs_replay=gs_replay, starts=starts, chain=chain,
+            env_steps=state.env_steps + totals[0],
+        )
+        episodes = jnp.maximum(totals[2], 1)
+        return state, (totals[0], totals[1], totals[2], totals[3] / episodes, totals[4] / episodes)
+
+    def _gs_row(self, level: int, episodes: EpisodeEnd) -> GSRow:
+        """Goal-space samples from finished episodes, rewarded with the level's sigma_gs."""
+        info = episodes.info
+        z = gce.sample_goal(info.noise, info.action)
+        reward = gce.goal_space_reward(
+            self.env.goal_of_obs(info.obs), z, self.env.goal_of_obs(episodes.final_obs),
+            info.action, self.cfg.sigma_gs[level],
+        )
+        return GSRow(obs=info.obs, noise=info.noise, action=info.action, reward=reward)
+
+    # ---- learning -------------------------------------------------------------------
+    def _policy(self, level: int, actor: Params, box: Params):
+        """The level's deterministic policy over a batch, with its current action box."""
+        policy = self.hierarchy.policies[level]
+        params = LevelParams(actor=actor, box=box, noise=jnp.zeros(()))
+        dummy = jax.random.key(0)
+        return lambda obs, goal: jax.vmap(policy, (None, 0, 0, None))(params, obs, goal, dummy)
+
+    def gc_losses(self, level: int, learner: GCLearner, box: Params, batch: GCRow):
+        """(critic loss, actor loss) functions of one goal-conditioned minibatch (DDPG)."""
+        cfg, env = self.cfg, self.env
+        reward = gce.goal_conditioned_reward(batch.goal, env.goal_of_obs(batch.next_obs), cfg.sigma_gc[level])
+        discount = gce.goal_conditioned_discount(batch.reached, cfg.gamma)
+        next_action = self._policy(level, learner.target_actor, box)(batch.next_obs, batch.goal)
+        next_q = self.q_value(learner.target_critic, batch.next_obs, batch.goal, next_action)
+        target = jax.lax.stop_gradient(reward + discount * jnp.minimum(next_q, self.q_max(level)))
+
+        def critic_loss(critic):
+            q = self.q_value(critic, batch.obs, batch.goal, batch.action)
+            return jnp.mean(jnp.square(q - target))
+
+        def actor_loss(actor, critic):
+            action = self._policy(level, actor, box)(batch.obs, batch.goal)
+            return -jnp.mean(self.q_value(critic, batch.obs, batch.goal, action))
+
+        return critic_loss, actor_loss
+
+    def q_max(self, level: int) -> float:
+        """Largest value any return can have: every step at the reward's peak, never ending.
+
+        The reward log N(goal; h(s'), sigma) peaks at h(s') = goal. Bootstrapped targets are
+        capped here, which stops the critic's overestimation from feeding on itself.
+        """
+        d, sigma, gamma = self.env.goal_size, self.cfg.sigma_gc[level], self.cfg.gamma
+        peak = -d * (math.log(sigma) + 0.5 * gce.LOG_2PI)
+        return max(peak, peak / (1.0 - gamma))
+
+    def _gc_update(self, level: int):
+        cfg, opt = self.cfg, self.optimizers
+
+        def update(learners, replay, gs_replay, key):
+            del gs_replay
+            gcs, gss = learners
+            box = None if level == 0 else gss[level - 1].actor
+
+            def step(learner: GCLearner, step_key):
+                batch = replay_sample(replay[level], step_key, cfg.batch_size)
+                critic_loss, actor_loss = self.gc_losses(level, learner, box, batch)
+                c_loss, c_grad = jax.value_and_grad(critic_loss)(learner.critic)
+                c_updates, critic_opt = opt["critic"].update(c_grad, learner.critic_opt, learner.critic)
+                critic = optax.apply_updates(learner.critic, c_updates)
+                a_loss, a_grad = jax.value_and_grad(actor_loss)(learner.actor, critic)
+                a_updates, actor_opt = opt["actor"].update(a_grad, learner.actor_opt, learner.actor)
+                actor = optax.apply_updates(learner.actor, a_updates)
+                learner = GCLearner(
+                    actor=actor, critic=critic,
+                    target_actor=optax.incremental_update(actor, learner.target_actor, cfg.tau),
+                    target_critic=optax.incremental_update(critic, learner.target_critic, cfg.tau),
+                    actor_opt=actor_opt, critic_opt=critic_opt,
+                )
+                return learner, jnp.stack([c_loss, a_loss])
+
+            learner, losses = jax.lax.scan(step, gcs[level], jax.random.split(key, cfg.gc_grad_steps))
+            gcs = gcs[:level] + (learner,) + gcs[level + 1 :]
+            return (gcs, gss), losses.mean(axis=0)
+
+        return update
+
+    def gs_losses(self, level: int, learner: GSLearner, batch: GSRow, noise: jax.Array):
+        """(critic loss, actor loss) functions of one goal-space minibatch (SVG through R).
+
+        The actor averages R over fresh uniform ``noise``: the stored noise over-represents
+        goals that end their episodes early (they are collected more often per step).
+        """
+
+        def critic_loss(critic):
+            value = self.gs_value(critic, batch.obs, batch.noise, batch.action)
+            return jnp.mean(jnp.square(value - batch.reward))
+
+        def actor_loss(actor, critic):
+            action = jax.vmap(lambda o: self.goal_space_action(level, actor, o))(batch.obs)
+            return -jnp.mean(self.gs_value(critic, batch.obs, noise, action))
+
+        return critic_loss, actor_loss
+
+    def _gs_update(self, level: int):
+        cfg, opt = self.cfg, self.optimizers
+
+        def update(learners, replay, gs_replay, key):
+            del replay
+            gcs, gss = learners
+
+            def step(learner: GSLearner, step_key):
+                sample_key, noise_key = jax.random.split(step_key)
+                batch = replay_sample(gs_replay[level], sample_key, cfg.batch_size)
+                noise = gce.goal_noise(noise_key, batch.noise.shape)
+                critic_loss, actor_loss = self.gs_losses(level, learner, batch, noise)
+                c_loss, c_grad = jax.value_and_grad(critic_loss)(learner.critic)
+                c_updates, critic_opt = opt["gs_critic"].update(c_grad, learner.critic_opt, learner.critic)
+                critic = optax.apply_updates(learner.critic, c_updates)
+                a_loss, a_grad = jax.value_and_grad(actor_loss)(learner.actor, critic)
+                a_updates, actor_opt = opt["gs_actor"].update(a_grad, learner.actor_opt, learner.actor)
+                actor = optax.apply_updates(learner.actor, a_updates)
+                return GSLearner(actor, critic, actor_opt, critic_opt), jnp.stack([c_loss, a_loss])
+
+            learner, losses = jax.lax.scan(step, gss[level], jax.random.split(key, cfg.gs_grad_steps))
+            gss = gss[:level] + (learner,) + gss[level + 1 :]
+            return (gcs, gss), losses.mean(axis=0)
+
+        return update
+
+    def _no_update(self, learners, replay, gs_replay, key):
+        del replay, gs_replay, key
+        return learners, jnp.full(2, jnp.nan)
+
+    # ---- the epoch ------------------------------------------------------------------
+    def _train_epoch(self, state: TrainState) -> tuple[TrainState, ItemStats]:
+        cfg = self.cfg
+        branches = [self._no_update]
+        for level in range(cfg.k):
+            branches += [self._gc_update(level), self._gs_update(level)]
+
+        def item(state: TrainState, schedule_item):
+            root, mode = schedule_item[0], schedule_item[1]
+            key, collect_key, update_key = jax.random.split(state.key, 3)
+            state, (steps, transitions, episodes, reached, distance) = self._collect(
+                state.replace(key=key), root, mode, collect_key
+            )
+            branch = jnp.select([mode == MODE_GC, mode == MODE_GS], [1 + 2 * root, 2 + 2 * root], 0)
+            (gcs, gss), losses = jax.lax.switch(
+                branch, branches, (state.gc, state.gs), state.replay, state.gs_replay, update_key
+            )
+            stats = ItemStats(
+                root=root, mode=mode, env_steps=steps, transitions=transitions, episodes=episodes,
+                reached=reached, final_distance=distance, critic_loss=losses[0], actor_loss=losses[1],
+            )
+            return state.replace(gc=gcs, gs=gss), stats
+
+        state, stats = jax.lax.scan(item, state, jnp.asarray(epoch_schedule(cfg)))
+        return state.replace(epoch=state.epoch + 1), stats
+
+    def train_epoch(self, state: TrainState) -> tuple[TrainState, ItemStats]:
+        """One curriculum epoch as one jitted call; returns per-schedule-item stats."""
+        return _jit_train_epoch(self, state)
+
+    def goal_spaces(self, state: TrainState, obs: jax.Array | None = None) -> list[dict[str, list[float]]]:
+        """Each level's goal-space box at ``obs`` (default: the initial state), as plain floats."""
+        obs = jnp.asarray(self.initial_obs) if obs is None else obs
+        boxes = []
+        for level in range(self.cfg.k):
+            action = self.goal_space_action(level, state.gs[level].actor, obs)
+            shift, log_half_width = gce.split_goal_space_action(action)
+            boxes.append({
+                "shift": np.asarray(shift).tolist(),
+                "half_width": np.exp(np.asarray(log_half_width)).tolist(),
+                "volume": float(gce.box_volume(action)),
+            })
+        return boxes
+
+
+def _gc_row(t: Transition) -> GCRow:
+    return GCRow(obs=t.obs, goal=t.goal, action=t.action, next_obs=t.next_obs, reached=t.reached)
+
+
+_jit_init = jax.jit(Trainer._init, static_argnums=0)
+_jit_train_epoch = jax.jit(Trainer._train_epoch, static_argnums=0, donate_argnums=1)
+
+
+def epoch_metrics(trainer: Trainer, state: TrainState, stats: ItemStats, seconds: float) -> dict[str, Any]:
+    """One JSON-ready line of per-epoch metrics: goal spaces, success, losses, throughput."""
+    s = jax.tree.map(np.asarray, stats)
+    levels = []
+    for level, box in enumerate(trainer.goal_spaces(state)):
+        def pick(mode, field, reducer=np.mean):
+            rows = (s.root == level) & (s.mode == mode)
+            return float(reducer(getattr(s, field)[rows])) if rows.any() else None
+
+        levels.append({
+            "level": level,
+            **box,
+            "success": pick(MODE_EVAL, "reached"),
+            "final_distance": pick(MODE_EVAL, "final_distance"),
+            "gs_success": pick(MODE_GS, "reached"),
+            "gc_critic_loss": pick(MODE_GC, "critic_loss"),
+            "gc_actor_loss": pick(MODE_GC, "actor_loss"),
+            "gs_critic_loss": pick(MODE_GS, "critic_loss"),
+            "gs_actor_loss": pick(MODE_GS, "actor_loss"),
+            "transitions": pick(MODE_GC, "transitions", np.sum),
+        })
+    steps = float(s.env_steps.sum())
+    return {
+        "epoch": int(state.epoch),
+        "env_steps": float(state.env_steps),
+        "epoch_env_steps": steps,
+        "seconds": seconds,
+        "env_steps_per_s": steps / seconds if seconds > 0 else None,
+        "levels": levels,
+    }

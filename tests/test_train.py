@@ -1,0 +1,179 @@
+"""Phase-1 trainer: update rules, buffers it fills, and one-epoch mechanics on a tiny agent."""
+
+from __future__ import annotations
+
+import functools
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from mjx_emp import gce
+from mjx_emp.config import ConfigError, TrainConfig
+from mjx_emp.envs import make_env
+from mjx_emp.train import (
+    MODE_EVAL,
+    MODE_GC,
+    MODE_GS,
+    MODE_STARTS,
+    GCRow,
+    Trainer,
+    _jit_train_epoch,
+    epoch_metrics,
+    epoch_schedule,
+)
+
+TINY = TrainConfig(
+    env="point_mass", n=(3, 2), sigma_gc=(0.4, 0.8), sigma_gs=(0.4, 0.8), eps=(0.3, 0.6),
+    init_half_width=(0.3, 0.6), max_half_width=(3.0, 6.0), num_envs=8, chunk_steps=3,
+    gc_iterations=2, gc_grad_steps=3, gs_grad_steps=2, batch_size=16, replay_capacity=512,
+    gs_replay_capacity=64, start_capacity=64, start_chain=2, hidden=(16,), seed=3,
+)
+
+
+@functools.cache
+def tiny_trainer() -> Trainer:
+    return Trainer(TINY)
+
+
+@functools.cache
+def tiny_after_two_epochs():
+    trainer = tiny_trainer()
+    state = trainer.init()
+    initial = jax.tree.map(np.asarray, state.gs[0].actor)
+    state, first = trainer.train_epoch(state)
+    compiled = _jit_train_epoch._cache_size()
+    state, second = trainer.train_epoch(state)
+    assert _jit_train_epoch._cache_size() == compiled, "epoch 2 recompiled"
+    return trainer, initial, state, first, second
+
+
+def test_schedule_follows_the_appendix_per_level():
+    schedule = epoch_schedule(TrainConfig(n=(20, 10), sigma_gc=(0.4, 0.8), sigma_gs=(1.75, 3.5),
+                                          eps=(0.6, 1.2), init_half_width=(0.5, 1.0), max_half_width=(10, 100)))
+    assert tuple(schedule[0]) == (2, MODE_STARTS)
+    for level in range(2):
+        modes = schedule[schedule[:, 0] == level, 1]
+        assert list(modes) == [MODE_GC] * 10 + [MODE_GS] + [MODE_EVAL]
+
+
+def test_q_max_is_the_reward_peak_summed_over_an_endless_episode():
+    trainer = tiny_trainer()
+    peak = float(gce.goal_conditioned_reward(jnp.zeros(2), jnp.zeros(2), 0.4))
+    assert trainer.q_max(0) == pytest.approx(max(peak, peak / (1 - TINY.gamma)), rel=1e-5)
+    assert math.isclose(peak, -2 * (math.log(0.4) + 0.5 * math.log(2 * math.pi)), rel_tol=1e-5)
+
+
+def test_goal_space_actor_starts_at_the_initial_box_and_respects_its_bound():
+    trainer = tiny_trainer()
+    state = trainer.init()
+    for level, box in enumerate(trainer.goal_spaces(state)):
+        np.testing.assert_allclose(box["half_width"], TINY.init_half_width[level], rtol=1e-2)
+        np.testing.assert_allclose(box["shift"], 0.0, atol=1e-2)
+    net = trainer.gs_actor_net(0)
+    params = jax.tree.map(lambda x: x * 1e4, state.gs[0].actor)  # an absurd network
+    action = net.apply(params, jnp.ones(make_env("point_mass").feature_size) * 50)
+    shift, log_half_width = gce.split_goal_space_action(action)
+    assert np.all(np.abs(shift) <= TINY.max_half_width[0] + 1e-5)
+    assert np.all(np.exp(log_half_width) <= TINY.max_half_width[0] * (1 + 1e-5))
+
+
+def test_gc_update_moves_targets_by_tau_and_only_its_level():
+    trainer = tiny_trainer()
+    cfg = TINY
+    trainer_one_step = Trainer(TrainConfig(**{**cfg.__dict__, "gc_grad_steps": 1}))
+    state = trainer_one_step.init()
+    state, _ = trainer_one_step.train_epoch(state)  # fills the replay buffers
+    before = state.gc
+    (gcs, gss), losses = trainer_one_step._gc_update(1)((state.gc, state.gs), state.replay, state.gs_replay,
+                                                         jax.random.key(0))
+    assert np.all(np.isfinite(np.asarray(losses)))
+    for new, old, target in zip(jax.tree.leaves(gcs[1].critic), jax.tree.leaves(before[1].target_critic),
+                                jax.tree.leaves(gcs[1].target_critic)):
+        np.testing.assert_allclose(target, cfg.tau * new + (1 - cfg.tau) * old, rtol=1e-5, atol=1e-7)
+    for new, old, target in zip(jax.tree.leaves(gcs[1].actor), jax.tree.leaves(before[1].target_actor),
+                                jax.tree.leaves(gcs[1].target_actor)):
+        np.testing.assert_allclose(target, cfg.tau * new + (1 - cfg.tau) * old, rtol=1e-5, atol=1e-7)
+    for a, b in zip(jax.tree.leaves(gcs[0]), jax.tree.leaves(before[0])):
+        np.testing.assert_array_equal(a, b)
+    assert not np.allclose(jax.tree.leaves(gcs[1].critic)[0], jax.tree.leaves(before[1].critic)[0])
+
+
+def test_gc_critic_target_masks_bootstrap_where_reached():
+    trainer = tiny_trainer()
+    state = trainer.init()
+    obs = jnp.zeros((2, make_env("point_mass").obs_size))
+    batch = GCRow(obs=obs, goal=jnp.ones((2, 2)), action=jnp.zeros((2, 2)), next_obs=obs,
+                  reached=jnp.array([True, False]))
+    learner = state.gc[0]
+    critic_loss, _ = trainer.gc_losses(0, learner, None, batch)
+    q = trainer.q_value(learner.critic, obs, batch.goal, batch.action)
+    reward = gce.goal_conditioned_reward(batch.goal, jnp.zeros((2, 2)), TINY.sigma_gc[0])
+    next_action = trainer._policy(0, learner.target_actor, None)(obs, batch.goal)
+    next_q = jnp.minimum(trainer.q_value(learner.target_critic, obs, batch.goal, next_action), trainer.q_max(0))
+    target = reward + jnp.array([0.0, TINY.gamma]) * next_q
+    np.testing.assert_allclose(critic_loss(learner.critic), jnp.mean(jnp.square(q - target)), rtol=1e-5)
+
+
+def test_two_epochs_fill_buffers_learn_and_do_not_recompile():
+    trainer, initial, state, first, second = tiny_after_two_epochs()
+    assert int(state.epoch) == 2
+    assert all(np.isfinite(np.asarray(x)).all() for x in jax.tree.leaves((state.gc, state.gs)))
+    # Every level collected and stored its own transitions and goal-space samples.
+    for level in range(TINY.k):
+        assert int(state.replay[level].size) > 0
+        assert int(state.gs_replay[level].size) > 0
+        assert int(state.starts[level].size) > 1, "the greedy chain added start states"
+    # Level-1 transitions act in level 0's goal space: subgoals stay inside its bound.
+    rows = np.asarray(state.replay[1].data.action[: int(state.replay[1].size)])
+    assert np.all(np.abs(rows) <= 2 * TINY.max_half_width[0] + 1e-4)
+    # The goal-space actor was trained.
+    assert not np.allclose(jax.tree.leaves(initial)[0], jax.tree.leaves(state.gs[0].actor)[0])
+    # Every GC/GS/eval item ran until each environment finished an episode.
+    s = jax.tree.map(np.asarray, second)
+    assert np.all(s.episodes[s.mode != MODE_STARTS] >= TINY.num_envs)
+    assert np.all(s.env_steps > 0)
+    assert float(state.env_steps) == pytest.approx(float(np.sum(first.env_steps) + np.sum(s.env_steps)))
+
+
+def test_epoch_metrics_report_every_level():
+    trainer, _, state, _, second = tiny_after_two_epochs()
+    metrics = epoch_metrics(trainer, state, second, 1.0)
+    assert metrics["epoch"] == 2 and len(metrics["levels"]) == 2
+    for level in metrics["levels"]:
+        assert level["volume"] == pytest.approx(np.prod(2 * np.asarray(level["half_width"])), rel=1e-4)
+        assert 0.0 <= level["success"] <= 1.0
+        assert np.isfinite(level["gc_critic_loss"]) and np.isfinite(level["gs_critic_loss"])
+    assert metrics["env_steps_per_s"] > 0
+
+
+def test_restore_round_trips_observations():
+    for name in ("point_mass", "ant_cage"):
+        env = make_env(name)
+        state = env.reset_to(jax.random.key(0), jnp.full(env.goal_size, 1.5))
+        state = env.step(state, jnp.full(env.action_size, 0.5))
+        obs = env.observe(state)
+        np.testing.assert_allclose(env.observe(env.restore(jax.random.key(1), obs)), obs, rtol=1e-6)
+    env = make_env("ant_cage")
+    opened = env.observe(env.reset(jax.random.key(0))).at[-1].set(1.0)
+    assert bool(env.cage_open(env.restore(jax.random.key(0), opened)))
+
+
+@pytest.mark.parametrize(
+    "change, field",
+    [
+        (dict(n=()), "n"),
+        (dict(sigma_gc=(0.4,)), "sigma_gc"),
+        (dict(sigma_gs=(0.4, -1.0)), "sigma_gs"),
+        (dict(eps=(0.3, 0.0)), "eps"),
+        (dict(env="maze"), "env"),
+        (dict(init_half_width=(0.3, 9.0)), "init_half_width"),
+        (dict(gamma=1.0), "gamma"),
+        (dict(num_envs=0), "num_envs"),
+    ],
+)
+def test_bad_train_config_names_the_field(change, field):
+    with pytest.raises(ConfigError, match=field):
+        Trainer(TrainConfig(**{**TINY.__dict__, **change}))
