@@ -32,8 +32,8 @@ def check_levels(n: Sequence[int], eps: Sequence[float], k: int | None = None) -
 class TrainConfig:
     """Phase-1 Hierarchical Empowerment training of a k-level agent.
 
-    Per-level tuples (n, sigma_gc, sigma_gs, eps, init_half_width) are indexed from the
-    bottom level up; k is their length. Names follow the paper; values the paper leaves
+    Per-level tuples (n, sigma_gc, sigma_gs, eps, init_half_width, max_half_width) are
+    indexed from the bottom level up; k is their length. Names follow the paper; values the paper leaves
     open are ours, stated in the presets' docstrings.
     """
 

@@ -544,6 +544,23 @@ class Trainer:
         """One curriculum epoch as one jitted call; returns per-schedule-item stats."""
         return _jit_train_epoch(self, state)
 
+    def evaluate(self, state: TrainState, level: int, key: jax.Array, rounds: int = 4) -> dict[str, float]:
+        """Greedy skills at ``level`` on goals drawn from its own (noise-free) goal space.
+
+        ``rounds`` x num_envs episodes start from the level's start buffer; returns the
+        fraction that ended within eps of their goal and the mean final distance.
+        """
+        reached, distance = _jit_evaluate(self, state, jnp.int32(level), key, rounds)
+        return {"success": float(reached), "final_distance": float(distance)}
+
+    def _evaluate(self, state: TrainState, level: jax.Array, key: jax.Array, rounds: int):
+        def one(_, round_key):
+            _, (_, _, _, reached, distance) = self._collect(state, level, jnp.int32(MODE_EVAL), round_key)
+            return None, (reached, distance)
+
+        _, (reached, distance) = jax.lax.scan(one, None, jax.random.split(key, rounds))
+        return reached.mean(), distance.mean()
+
     def goal_spaces(self, state: TrainState, obs: jax.Array | None = None) -> list[dict[str, list[float]]]:
         """Each level's goal-space box at ``obs`` (default: the initial state), as plain floats."""
         obs = jnp.asarray(self.initial_obs) if obs is None else obs
@@ -565,6 +582,7 @@ def _gc_row(t: Transition) -> GCRow:
 
 _jit_init = jax.jit(Trainer._init, static_argnums=0)
 _jit_train_epoch = jax.jit(Trainer._train_epoch, static_argnums=0, donate_argnums=1)
+_jit_evaluate = jax.jit(Trainer._evaluate, static_argnums=(0, 4))
 
 
 def epoch_metrics(trainer: Trainer, state: TrainState, stats: ItemStats, seconds: float) -> dict[str, Any]:

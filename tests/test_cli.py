@@ -16,16 +16,23 @@ def cli(*args: str) -> subprocess.CompletedProcess:
 @pytest.mark.parametrize(
     "args, field",
     [
-        (["--env", "pointmass"], "point_mass"),  # tyro lists the allowed choices
-        (["--n", "20", "10", "--eps", "0.5"], "eps"),
-        (["--n", "0"], "n"),
-        (["--n", "20", "--eps", "-1"], "eps"),
-        (["--n", "20", "10", "10", "--eps", "1", "1", "1", "--subgoal-half-width", "2"], "subgoal_half_width"),
-        (["--batch-size", "0"], "batch_size"),
+        (["rollout", "--env", "pointmass"], "point_mass"),  # tyro lists the allowed choices
+        (["rollout", "--n", "20", "10", "--eps", "0.5"], "eps"),
+        (["rollout", "--n", "0"], "n"),
+        (["rollout", "--n", "20", "--eps", "-1"], "eps"),
+        (["rollout", "--n", "20", "10", "10", "--eps", "1", "1", "1", "--subgoal-half-width", "2"],
+         "subgoal_half_width"),
+        (["rollout", "--batch-size", "0"], "batch_size"),
+        (["train", "point-mass-k1", "--sigma-gc", "0.4", "0.8"], "sigma_gc"),
+        (["train", "point-mass-k2", "--n", "10"], "eps"),
+        (["train", "point-mass-k1", "--eps", "0"], "eps"),
+        (["train", "point-mass-k1", "--sigma-gs", "-1"], "sigma_gs"),
+        (["train", "point-mass-k1", "--env", "maze"], "env"),
+        (["train", "point-mass-k1", "--run-dir", "/proc/mjx-emp-cannot-write"], "run_dir"),
     ],
 )
-def test_bad_rollout_config_exits_2_naming_the_field(args, field):
-    result = cli("rollout", *args)
+def test_bad_config_exits_2_naming_the_field(args, field):
+    result = cli(*args)
     assert result.returncode == 2, result.stderr
     assert field in result.stderr
 
@@ -45,3 +52,33 @@ def test_rollout_main_job_reports_statistics():
     assert report["useful_step_fraction"] >= 0.95
     assert len(report["goals_ended_per_level"]) == 2
     assert report["goals_ended_per_level"][0] >= 16 * 30 // 5  # level 0 ends a goal at least every n actions
+
+
+def test_unknown_preset_exits_2_listing_presets():
+    result = cli("train", "point-mass-k9")
+    assert result.returncode == 2
+    assert "point-mass-k1" in result.stderr
+
+
+def test_presets_lists_every_table_1_row():
+    result = cli("presets")
+    assert result.returncode == 0
+    for name in ("point-mass-k1", "ant-field-small-k1", "ant-field-xl-k3", "half-cheetah-big-k2",
+                 "ant-cage-k2", "half-cheetah-cage-k1"):
+        assert name in result.stdout
+
+
+def test_train_writes_config_and_one_metrics_line_per_epoch(tmp_path):
+    run_dir = tmp_path / "run"
+    result = cli("train", "point-mass-k2", "--epochs", "2", "--n", "3", "2", "--num-envs", "8",
+                 "--hidden", "16", "--gc-iterations", "1", "--gc-grad-steps", "2", "--batch-size", "16",
+                 "--replay-capacity", "256", "--start-chain", "2", "--run-dir", str(run_dir))
+    assert result.returncode == 0, result.stderr
+    config = json.loads((run_dir / "config.json").read_text())
+    assert config["n"] == [3, 2] and config["epochs"] == 2
+    lines = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
+    assert [m["epoch"] for m in lines] == [1, 2]
+    for m in lines:
+        assert len(m["levels"]) == 2 and m["env_steps_per_s"] > 0
+        assert all(level["volume"] > 0 for level in m["levels"])
+    assert "epoch    2" in result.stdout

@@ -1,0 +1,122 @@
+"""Cost of a full phase-1 training epoch next to pure rollout, and its compile time.
+
+For each domain and k, in one process:
+- compile: wall time of the first epoch minus a warm epoch (the epoch is one jitted call);
+- recompiled: whether a later epoch compiled again (it must not);
+- epoch env steps/s: physics-level primitive steps of a warm epoch over its wall time
+  (collection at every level plus all gradient steps, start-state chain and evaluation);
+- rollout steps/s: the same agent's compiled rollout alone (no learning), rooted at the top
+  level, over the same batch, timed in the same process;
+- overhead = rollout steps/s / epoch env steps/s (goal <= 2).
+
+Epoch and rollout are timed alternately (``--repeats`` rounds); the overhead is the median
+of per-round ratios. Prints a Markdown table and writes JSON
+(default ``benchmarks/results/train_<backend>.json``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import platform
+import statistics
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import tyro
+
+from mjx_emp.config import TrainConfig
+from mjx_emp.experiments.presets import PRESETS
+from mjx_emp.hierarchy import jit_init_rollout, jit_rollout
+from mjx_emp.train import MODE_GC, Trainer, _jit_train_epoch
+
+
+@dataclasses.dataclass
+class Args:
+    """Training-epoch throughput and compile-time benchmark."""
+
+    presets: tuple[str, ...] = ("point-mass-k1", "point-mass-k2", "ant-field-small-k1",
+                                "ant-field-big-k2", "ant-field-xl-k3")
+    num_envs: int = 0
+    """Environments per collection; 0 keeps each preset's value on GPU and uses 64 on CPU."""
+    hidden: tuple[int, ...] = ()
+    """Network widths; empty keeps the preset's."""
+    repeats: int = 3
+    out: str = ""
+    """JSON output path; empty means benchmarks/results/train_<backend>.json."""
+
+
+def _seconds(fn):
+    start = time.perf_counter()
+    out = fn()
+    jax.block_until_ready(out)
+    return time.perf_counter() - start, out
+
+
+def measure(name: str, cfg: TrainConfig, repeats: int) -> dict:
+    """Compile time, warm epoch throughput and rollout-only throughput of one config."""
+    trainer = Trainer(cfg)
+    state = trainer.init()
+    cached = _jit_train_epoch._cache_size()
+    first, (state, stats) = _seconds(lambda: trainer.train_epoch(state))
+    compiled = _jit_train_epoch._cache_size()
+
+    root = jnp.int32(cfg.k - 1)
+    params, start_params = trainer._rollout_inputs(state, root, jnp.int32(MODE_GC))
+    h, start, steps = trainer.hierarchy, trainer._start, cfg.chunk_steps
+    rollout_state = jit_init_rollout(h, params, start, start_params, jax.random.key(1), cfg.num_envs, cfg.k - 1)
+    jax.block_until_ready(jit_rollout(h, params, start, start_params, rollout_state, steps))
+
+    epoch_rates, rollout_rates, ratios, epoch_seconds = [], [], [], []
+    for _ in range(repeats):
+        dt, (state, stats) = _seconds(lambda: trainer.train_epoch(state))
+        epoch_rate = float(jnp.sum(stats.env_steps)) / dt
+        dt_roll, out = _seconds(lambda: jit_rollout(h, params, start, start_params, rollout_state, steps))
+        rollout_state = out[0]
+        rollout_rate = steps * cfg.num_envs / dt_roll
+        epoch_rates.append(epoch_rate)
+        rollout_rates.append(rollout_rate)
+        ratios.append(rollout_rate / epoch_rate)
+        epoch_seconds.append(dt)
+    warm = statistics.median(epoch_seconds)
+    return {
+        "preset": name, "env": cfg.env, "k": cfg.k, "n": list(cfg.n), "num_envs": cfg.num_envs,
+        "hidden": list(cfg.hidden), "compile_s": first - warm, "epoch_s": warm,
+        "epoch_env_steps_per_s": statistics.median(epoch_rates),
+        "rollout_steps_per_s": statistics.median(rollout_rates),
+        "overhead": statistics.median(ratios),
+        "recompiled": _jit_train_epoch._cache_size() > compiled,
+        "new_programs_first_epoch": compiled - cached,
+    }
+
+
+def main(args: Args) -> None:
+    backend = jax.default_backend()
+    rows = []
+    for name in args.presets:
+        cfg = PRESETS[name][1]
+        num_envs = args.num_envs or (cfg.num_envs if backend == "gpu" else min(cfg.num_envs, 64))
+        cfg = dataclasses.replace(cfg, num_envs=num_envs, batch_size=min(cfg.batch_size, 256),
+                                  hidden=tuple(args.hidden) or cfg.hidden)
+        row = measure(name, cfg, args.repeats)
+        rows.append(row)
+        print(json.dumps(row), flush=True)
+    print("\n| preset | k | B | compile s | epoch s | epoch env steps/s | rollout steps/s | overhead | recompiled |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        print(f"| {r['preset']} | {r['k']} | {r['num_envs']} | {r['compile_s']:.1f} | {r['epoch_s']:.2f} | "
+              f"{r['epoch_env_steps_per_s']:,.0f} | {r['rollout_steps_per_s']:,.0f} | {r['overhead']:.2f} | "
+              f"{r['recompiled']} |")
+    out = Path(args.out or f"benchmarks/results/train_{backend}.json")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps({
+        "backend": backend, "device": str(jax.devices()[0]), "machine": platform.machine(),
+        "jax": jax.__version__, "args": dataclasses.asdict(args), "rows": rows,
+    }, indent=1))
+    print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+    main(tyro.cli(Args))
