@@ -43,6 +43,9 @@ class Args:
     """Environments per collection; 0 keeps each preset's value on GPU and uses 64 on CPU."""
     hidden: tuple[int, ...] = ()
     """Network widths; empty keeps the preset's."""
+    gc_iterations: int = 0
+    """Goal-conditioned iterations per level and epoch; 0 keeps the preset's 10. Fewer keep
+    a CPU epoch of deep agents short; the compiled program (and compile time) is the same."""
     repeats: int = 3
     out: str = ""
     """JSON output path; empty means benchmarks/results/train_<backend>.json."""
@@ -63,16 +66,18 @@ def measure(name: str, cfg: TrainConfig, repeats: int) -> dict:
     first, (state, stats) = _seconds(lambda: trainer.train_epoch(state))
     compiled = _jit_train_epoch._cache_size()
 
-    root = jnp.int32(cfg.k - 1)
-    params, start_params = trainer._rollout_inputs(state, root, jnp.int32(MODE_GC))
+    # The epoch donates its input state, so rollout inputs are re-read after every epoch.
+    root, mode = jnp.int32(cfg.k - 1), jnp.int32(MODE_GC)
     h, start, steps = trainer.hierarchy, trainer._start, cfg.chunk_steps
+    params, start_params = trainer._rollout_inputs(state, root, mode)
     rollout_state = jit_init_rollout(h, params, start, start_params, jax.random.key(1), cfg.num_envs, cfg.k - 1)
-    jax.block_until_ready(jit_rollout(h, params, start, start_params, rollout_state, steps))
+    rollout_state = jax.block_until_ready(jit_rollout(h, params, start, start_params, rollout_state, steps))[0]
 
     epoch_rates, rollout_rates, ratios, epoch_seconds = [], [], [], []
     for _ in range(repeats):
         dt, (state, stats) = _seconds(lambda: trainer.train_epoch(state))
         epoch_rate = float(jnp.sum(stats.env_steps)) / dt
+        params, start_params = trainer._rollout_inputs(state, root, mode)
         dt_roll, out = _seconds(lambda: jit_rollout(h, params, start, start_params, rollout_state, steps))
         rollout_state = out[0]
         rollout_rate = steps * cfg.num_envs / dt_roll
@@ -83,7 +88,7 @@ def measure(name: str, cfg: TrainConfig, repeats: int) -> dict:
     warm = statistics.median(epoch_seconds)
     return {
         "preset": name, "env": cfg.env, "k": cfg.k, "n": list(cfg.n), "num_envs": cfg.num_envs,
-        "hidden": list(cfg.hidden), "compile_s": first - warm, "epoch_s": warm,
+        "hidden": list(cfg.hidden), "gc_iterations": cfg.gc_iterations, "compile_s": first - warm, "epoch_s": warm,
         "epoch_env_steps_per_s": statistics.median(epoch_rates),
         "rollout_steps_per_s": statistics.median(rollout_rates),
         "overhead": statistics.median(ratios),
@@ -99,14 +104,15 @@ def main(args: Args) -> None:
         cfg = PRESETS[name][1]
         num_envs = args.num_envs or (cfg.num_envs if backend == "gpu" else min(cfg.num_envs, 64))
         cfg = dataclasses.replace(cfg, num_envs=num_envs, batch_size=min(cfg.batch_size, 256),
-                                  hidden=tuple(args.hidden) or cfg.hidden)
+                                  hidden=tuple(args.hidden) or cfg.hidden,
+                                  gc_iterations=args.gc_iterations or cfg.gc_iterations)
         row = measure(name, cfg, args.repeats)
         rows.append(row)
         print(json.dumps(row), flush=True)
-    print("\n| preset | k | B | compile s | epoch s | epoch env steps/s | rollout steps/s | overhead | recompiled |")
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("\n| preset | k | B | GC iters | compile s | epoch s | epoch env steps/s | rollout steps/s | overhead | recompiled |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
-        print(f"| {r['preset']} | {r['k']} | {r['num_envs']} | {r['compile_s']:.1f} | {r['epoch_s']:.2f} | "
+        print(f"| {r['preset']} | {r['k']} | {r['num_envs']} | {r['gc_iterations']} | {r['compile_s']:.1f} | {r['epoch_s']:.2f} | "
               f"{r['epoch_env_steps_per_s']:,.0f} | {r['rollout_steps_per_s']:,.0f} | {r['overhead']:.2f} | "
               f"{r['recompiled']} |")
     out = Path(args.out or f"benchmarks/results/train_{backend}.json")
