@@ -445,20 +445,18 @@ class Trainer:
 
             def step(learner: GCLearner, step_key):
                 batch = replay_sample(replay[level], step_key, cfg.batch_size)
-                critic_loss, actor_loss = self.gc_losses(level, learner, box, batch)
-                c_loss, c_grad = jax.value_and_grad(critic_loss)(learner.critic)
-                c_updates, critic_opt = opt["critic"].update(c_grad, learner.critic_opt, learner.critic)
-                critic = optax.apply_updates(learner.critic, c_updates)
-                a_loss, a_grad = jax.value_and_grad(actor_loss)(learner.actor, critic)
-                a_updates, actor_opt = opt["actor"].update(a_grad, learner.actor_opt, learner.actor)
-                actor = optax.apply_updates(learner.actor, a_updates)
+                losses_fns = self.gc_losses(level, learner, box, batch)
+                actor, critic, actor_opt, critic_opt, losses = _actor_critic_step(
+                    *losses_fns, learner.actor, learner.critic, learner.actor_opt, learner.critic_opt,
+                    opt["actor"], opt["critic"],
+                )
                 learner = GCLearner(
                     actor=actor, critic=critic,
                     target_actor=optax.incremental_update(actor, learner.target_actor, cfg.tau),
                     target_critic=optax.incremental_update(critic, learner.target_critic, cfg.tau),
                     actor_opt=actor_opt, critic_opt=critic_opt,
                 )
-                return learner, jnp.stack([c_loss, a_loss])
+                return learner, losses
 
             learner, losses = jax.lax.scan(step, gcs[level], jax.random.split(key, cfg.gc_grad_steps))
             gcs = gcs[:level] + (learner,) + gcs[level + 1 :]
@@ -494,14 +492,12 @@ class Trainer:
                 sample_key, noise_key = jax.random.split(step_key)
                 batch = replay_sample(gs_replay[level], sample_key, cfg.batch_size)
                 noise = gce.goal_noise(noise_key, batch.noise.shape)
-                critic_loss, actor_loss = self.gs_losses(level, learner, batch, noise)
-                c_loss, c_grad = jax.value_and_grad(critic_loss)(learner.critic)
-                c_updates, critic_opt = opt["gs_critic"].update(c_grad, learner.critic_opt, learner.critic)
-                critic = optax.apply_updates(learner.critic, c_updates)
-                a_loss, a_grad = jax.value_and_grad(actor_loss)(learner.actor, critic)
-                a_updates, actor_opt = opt["gs_actor"].update(a_grad, learner.actor_opt, learner.actor)
-                actor = optax.apply_updates(learner.actor, a_updates)
-                return GSLearner(actor, critic, actor_opt, critic_opt), jnp.stack([c_loss, a_loss])
+                losses_fns = self.gs_losses(level, learner, batch, noise)
+                actor, critic, actor_opt, critic_opt, losses = _actor_critic_step(
+                    *losses_fns, learner.actor, learner.critic, learner.actor_opt, learner.critic_opt,
+                    opt["gs_actor"], opt["gs_critic"],
+                )
+                return GSLearner(actor, critic, actor_opt, critic_opt), losses
 
             learner, losses = jax.lax.scan(step, gss[level], jax.random.split(key, cfg.gs_grad_steps))
             gss = gss[:level] + (learner,) + gss[level + 1 :]
@@ -573,6 +569,21 @@ class Trainer:
                 "volume": float(gce.box_volume(action)),
             })
         return boxes
+
+
+def _actor_critic_step(critic_loss, actor_loss, actor, critic, actor_opt, critic_opt, actor_tx, critic_tx):
+    """One critic step, then one actor step through the updated critic; returns both losses.
+
+    ``critic_loss(critic)`` and ``actor_loss(actor, critic)`` are the minibatch losses; the
+    goal-conditioned (DPG) and goal-space (SVG) learners share this step.
+    """
+    c_loss, c_grad = jax.value_and_grad(critic_loss)(critic)
+    c_updates, critic_opt = critic_tx.update(c_grad, critic_opt, critic)
+    critic = optax.apply_updates(critic, c_updates)
+    a_loss, a_grad = jax.value_and_grad(actor_loss)(actor, critic)
+    a_updates, actor_opt = actor_tx.update(a_grad, actor_opt, actor)
+    actor = optax.apply_updates(actor, a_updates)
+    return actor, critic, actor_opt, critic_opt, jnp.stack([c_loss, a_loss])
 
 
 def _gc_row(t: Transition) -> GCRow:
