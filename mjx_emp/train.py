@@ -323,8 +323,9 @@ class Trainer:
     def _collect(self, state: TrainState, root: jax.Array, mode: jax.Array, key: jax.Array):
         """Run the agent rooted at ``root`` and file what it saw into the right buffers.
 
-        GC: every valid root transition goes to the level's replay. GS: the first episode of
-        each environment goes to the goal-space replay. EVAL: nothing is stored. STARTS:
+        GC: every valid root transition goes to the level's replay. GS: every finished root
+        episode goes to the goal-space replay. EVAL: nothing is stored (success and distance
+        are read from each environment's first episode in every mode). STARTS:
         continues the greedy chain; the state each level got a new goal in is a start state.
         """
         cfg, env, h = self.cfg, self.env, self.hierarchy
@@ -464,7 +465,7 @@ class Trainer:
 
         return update
 
-    def gs_losses(self, level: int, learner: GSLearner, batch: GSRow, noise: jax.Array):
+    def gs_losses(self, level: int, batch: GSRow, noise: jax.Array):
         """(critic loss, actor loss) functions of one goal-space minibatch (SVG through R).
 
         The actor averages R over fresh uniform ``noise``: the stored noise over-represents
@@ -492,7 +493,7 @@ class Trainer:
                 sample_key, noise_key = jax.random.split(step_key)
                 batch = replay_sample(gs_replay[level], sample_key, cfg.batch_size)
                 noise = gce.goal_noise(noise_key, batch.noise.shape)
-                losses_fns = self.gs_losses(level, learner, batch, noise)
+                losses_fns = self.gs_losses(level, batch, noise)
                 actor, critic, actor_opt, critic_opt, losses = _actor_critic_step(
                     *losses_fns, learner.actor, learner.critic, learner.actor_opt, learner.critic_opt,
                     opt["gs_actor"], opt["gs_critic"],

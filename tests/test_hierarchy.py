@@ -136,14 +136,19 @@ def test_rooted_at_a_lower_level_leaves_levels_above_root_idle():
         jit_init_rollout(h, params, fixed_goal_start, None, jax.random.key(0), 4, 3)
 
 
+def counting(policy, traces: list):
+    """``policy`` that records each time JAX traces it (a trace means a compile)."""
+
+    def traced(params, obs, goal, key):
+        traces.append(1)
+        return policy(params, obs, goal, key)
+
+    return traced
+
+
 def test_root_is_data_one_compiled_program_serves_every_level():
     traces = []
-
-    def counting_hop(params, obs, goal, key):
-        traces.append(1)
-        return hop(params, obs, goal, key)
-
-    h = Hierarchy(ENV, (steer, counting_hop), n=(10, 5), eps=(0.1, 0.3))
+    h = Hierarchy(ENV, (steer, counting(hop, traces)), n=(10, 5), eps=(0.1, 0.3))
     state = jit_init_rollout(h, (None, None), START, None, jax.random.key(0), 8, root=0)
     state, (t0, t1), episodes, _ = jit_rollout(h, (None, None), START, None, state, 40)
     after_first = len(traces)
@@ -217,12 +222,7 @@ def test_nan_in_one_env_invalidates_its_step_and_restarts_it():
 
 def test_second_call_does_not_recompile():
     traces = []
-
-    def counting_steer(params, obs, goal, key):
-        traces.append(1)
-        return steer(params, obs, goal, key)
-
-    h = Hierarchy(ENV, (counting_steer, hop), n=(10, 5), eps=(0.1, 0.3))
+    h = Hierarchy(ENV, (counting(steer, traces), hop), n=(10, 5), eps=(0.1, 0.3))
     state = jit_init_rollout(h, (None, None), START, None, jax.random.key(0), 8)
     state, _, _, _ = jit_rollout(h, (None, None), START, None, state, 20)
     after_first = len(traces)
