@@ -7,7 +7,12 @@ For each domain and k, in one process:
   (collection at every level plus all gradient steps, start-state chain and evaluation);
 - rollout steps/s: the same agent's compiled rollout alone (no learning), rooted at the top
   level, over the same batch, timed in the same process;
-- overhead = rollout steps/s / epoch env steps/s (goal <= 2).
+- overhead = rollout steps/s / epoch env steps/s (goal <= 2);
+- checkpoint: what the per-epoch save adds to an epoch when epochs and saves alternate as in
+  `mjx-emp train` (the write runs in the background during the next epoch), and, for a
+  single save, the seconds it blocks, the seconds until it is committed to disk and its size;
+  the single-save figures are also taken with every buffer filled with noise
+  (incompressible: the worst case, a run whose buffers are full).
 
 Epoch and rollout are timed alternately (``--repeats`` rounds); the overhead is the median
 of per-round ratios. Prints a Markdown table and writes JSON
@@ -20,6 +25,7 @@ import dataclasses
 import json
 import platform
 import statistics
+import tempfile
 import time
 from pathlib import Path
 
@@ -27,6 +33,7 @@ import jax
 import jax.numpy as jnp
 import tyro
 
+from mjx_emp.checkpoint import Checkpoints
 from mjx_emp.config import TrainConfig
 from mjx_emp.experiments.presets import PRESETS
 from mjx_emp.hierarchy import jit_init_rollout, jit_rollout
@@ -58,6 +65,30 @@ def _seconds(fn):
     return time.perf_counter() - start, out
 
 
+def _noisy_buffers(state, key: jax.Array):
+    """``state`` with every floating-point buffer entry replaced by uniform noise."""
+    def fill(path, leaf):
+        if not jnp.issubdtype(leaf.dtype, jnp.floating):
+            return leaf
+        return jax.random.uniform(jax.random.fold_in(key, hash(jax.tree_util.keystr(path)) % 2**31), leaf.shape, leaf.dtype)
+
+    buffers = jax.tree_util.tree_map_with_path(fill, (state.replay, state.gs_replay, state.starts))
+    return state.replace(replay=buffers[0], gs_replay=buffers[1], starts=buffers[2])
+
+
+def checkpoint_cost(cfg: TrainConfig, state, repeats: int) -> dict:
+    """Median blocking and commit seconds of a checkpoint save, and its size in MB."""
+    with tempfile.TemporaryDirectory() as tmp, Checkpoints(Path(tmp), keep=2) as checkpoints:
+        blocking, committed = [], []
+        for epoch in range(repeats):
+            start = time.perf_counter()
+            blocking.append(checkpoints.save(epoch, state, cfg))
+            checkpoints.wait()
+            committed.append(time.perf_counter() - start)
+        size = sum(f.stat().st_size for f in checkpoints.step_dir(repeats - 1).rglob("*") if f.is_file())
+    return {"block_s": statistics.median(blocking), "commit_s": statistics.median(committed), "mb": size / 2**20}
+
+
 def measure(name: str, cfg: TrainConfig, repeats: int) -> dict:
     """Compile time, warm epoch throughput and rollout-only throughput of one config."""
     trainer = Trainer(cfg)
@@ -86,6 +117,17 @@ def measure(name: str, cfg: TrainConfig, repeats: int) -> dict:
         ratios.append(rollout_rate / epoch_rate)
         epoch_seconds.append(dt)
     warm = statistics.median(epoch_seconds)
+    rounds = max(repeats, 5)
+    with tempfile.TemporaryDirectory() as tmp, Checkpoints(Path(tmp), keep=2) as checkpoints:
+        start_time = time.perf_counter()
+        for epoch in range(rounds):
+            state, stats = trainer.train_epoch(state)
+            jax.block_until_ready(state)
+            checkpoints.save(epoch, state, cfg)
+        checkpoints.wait()
+        with_checkpoints = (time.perf_counter() - start_time) / rounds
+    checkpoint = checkpoint_cost(cfg, state, repeats)
+    checkpoint_full = checkpoint_cost(cfg, _noisy_buffers(state, jax.random.key(5)), repeats)
     return {
         "preset": name, "env": cfg.env, "k": cfg.k, "n": list(cfg.n), "num_envs": cfg.num_envs,
         "hidden": list(cfg.hidden), "gc_iterations": cfg.gc_iterations, "compile_s": first - warm, "epoch_s": warm,
@@ -94,6 +136,9 @@ def measure(name: str, cfg: TrainConfig, repeats: int) -> dict:
         "overhead": statistics.median(ratios),
         "recompiled": _jit_train_epoch._cache_size() > compiled,
         "new_programs_first_epoch": compiled - cached,
+        "epoch_with_checkpoint_s": with_checkpoints,
+        "checkpoint_added_fraction": with_checkpoints / warm - 1,
+        "checkpoint": checkpoint, "checkpoint_full_buffers": checkpoint_full,
     }
 
 
@@ -115,6 +160,14 @@ def main(args: Args) -> None:
         print(f"| {r['preset']} | {r['k']} | {r['num_envs']} | {r['gc_iterations']} | {r['compile_s']:.1f} | {r['epoch_s']:.2f} | "
               f"{r['epoch_env_steps_per_s']:,.0f} | {r['rollout_steps_per_s']:,.0f} | {r['overhead']:.2f} | "
               f"{r['recompiled']} |")
+    print("\n| preset | epoch s | epoch + save s | added | one save: blocks s | committed s | MB | "
+          "full buffers: committed s | MB |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        c, f = r["checkpoint"], r["checkpoint_full_buffers"]
+        print(f"| {r['preset']} | {r['epoch_s']:.2f} | {r['epoch_with_checkpoint_s']:.2f} | "
+              f"{r['checkpoint_added_fraction']:+.0%} | {c['block_s']:.3f} | {c['commit_s']:.3f} | {c['mb']:.1f} | "
+              f"{f['commit_s']:.3f} | {f['mb']:.1f} |")
     out = Path(args.out or f"benchmarks/results/train_{backend}.json")
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps({

@@ -47,15 +47,25 @@ def _train(cfg, stop) -> dict:
             "all_levels": trainer.goal_spaces(state)}
 
 
-def main(args: Args) -> None:
-    two = _train(POINT_MASS_K2, lambda epochs, steps: epochs >= args.epochs)
+def compare(epochs: int = 150, k1_num_envs: int = 256) -> dict[str, dict]:
+    """Train point-mass-k2 for ``epochs``, then point-mass-k1 up to the same env steps.
+
+    Returns both agents' top goal spaces, greedy success, steps and wall time.
+    """
+    two = _train(POINT_MASS_K2, lambda done, steps: done >= epochs)
     print(json.dumps(two), flush=True)
-    one_cfg = dataclasses.replace(POINT_MASS_K1, num_envs=args.k1_num_envs)
-    one = _train(one_cfg, lambda epochs, steps: steps >= two["env_steps"])
+    one_cfg = dataclasses.replace(POINT_MASS_K1, num_envs=k1_num_envs)
+    one = _train(one_cfg, lambda done, steps: steps >= two["env_steps"])
     print(json.dumps(one), flush=True)
+    return {"k2": two, "k1": one}
+
+
+def main(args: Args) -> None:
+    result = compare(args.epochs, args.k1_num_envs)
+    two, one = result["k2"], result["k1"]
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"k2": two, "k1": one}, indent=1))
+    out.write_text(json.dumps(result, indent=1))
     print(f"k=2 top volume {two['top_goal_space']['volume']:.2f} (success {two['top_success']:.2f}) vs "
           f"k=1 {one['top_goal_space']['volume']:.2f} (success {one['top_success']:.2f}) "
           f"at {two['env_steps']:.3g} / {one['env_steps']:.3g} env steps")

@@ -1,4 +1,4 @@
-"""Experiment: phase-1 training of a preset, with any field overridden on the command line."""
+"""Experiments: phase-1 training of a preset (any field overridable), and resuming a run."""
 
 from __future__ import annotations
 
@@ -12,8 +12,29 @@ from mjx_emp.config import TrainConfig
 
 @dataclasses.dataclass(frozen=True)
 class TrainExperiment:
-    """Phase-1 Hierarchical Empowerment training; metrics go to RUN_DIR/metrics.jsonl."""
+    """Phase-1 Hierarchical Empowerment training.
+
+    RUN_DIR receives config.json, metrics.jsonl (one line per epoch) and checkpoints/ (an
+    orbax checkpoint after every epoch; continue with `mjx-emp train --resume RUN_DIR`).
+    """
 
     config: Annotated[TrainConfig, tyro.conf.OmitArgPrefixes]
-    run_dir: str = "runs/latest"
-    """Directory for the resolved config (config.json) and one metrics line per epoch."""
+    run_dir: str = ""
+    """Run directory; empty picks runs/<env>-k<k>-<date>-<time>. Must not hold a run already."""
+    keep_checkpoints: int = 3
+    """How many of the newest epoch checkpoints to keep."""
+
+
+@dataclasses.dataclass(frozen=True)
+class ResumeExperiment:
+    """Continue a phase-1 run from its latest good checkpoint, bit for bit as if never stopped."""
+
+    resume: str
+    """Run directory written by `mjx-emp train`."""
+    epochs: int | None = None
+    """New total number of epochs (default: the run's own). The only setting a resume may change."""
+    fallback: bool = False
+    """If the newest checkpoint is unreadable or does not match the run's config, use the newest
+    older one that restores (default: stop with an error naming the file)."""
+    keep_checkpoints: int = 3
+    """How many of the newest epoch checkpoints to keep."""

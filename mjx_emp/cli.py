@@ -5,18 +5,18 @@ Bad input exits with code 2 and a message naming the field and what it allows.
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import sys
 import time
-from pathlib import Path
 
 import tyro
 
-from mjx_emp.config import ConfigError, check_levels, check_train_config
+from mjx_emp import run
+from mjx_emp.config import ConfigError, check_levels
 from mjx_emp.experiments.presets import PRESETS
 from mjx_emp.experiments.rollout import RolloutExperiment
-from mjx_emp.experiments.train import TrainExperiment
+from mjx_emp.experiments.train import ResumeExperiment, TrainExperiment
+from mjx_emp.run import main_guarded
 
 
 def validate_rollout(cfg: RolloutExperiment) -> None:
@@ -94,70 +94,15 @@ def rollout(cfg: RolloutExperiment) -> None:
     print(json.dumps(run_rollout(cfg), indent=1))
 
 
-def _prepare_run_dir(path: str) -> Path:
-    """Create the run directory, or fail with a ConfigError naming run_dir."""
-    run_dir = Path(path)
-    try:
-        run_dir.mkdir(parents=True, exist_ok=True)
-        probe = run_dir / ".write-test"
-        probe.write_text("")
-        probe.unlink()
-    except OSError as err:
-        raise ConfigError(f"run_dir: cannot write to {str(run_dir)!r} ({err.strerror})") from err
-    return run_dir
-
-
-def _epoch_line(metrics: dict) -> str:
-    levels = "  ".join(
-        f"L{m['level']} volume {m['volume']:.3g} success {m['success']:.2f}"
-        if m["success"] is not None else f"L{m['level']} volume {m['volume']:.3g}"
-        for m in metrics["levels"]
-    )
-    return (f"epoch {metrics['epoch']:4d}  {metrics['env_steps']:.3g} env steps  "
-            f"{metrics['env_steps_per_s']:.3g} steps/s  {levels}")
-
-
-def train(exp: TrainExperiment) -> list[dict]:
-    """Train phase 1 for ``exp.config.epochs`` epochs; one metrics line per epoch."""
-    check_train_config(exp.config)
-    run_dir = _prepare_run_dir(exp.run_dir)
-    import jax  # deferred: keeps `--help` and config errors fast
-
-    from mjx_emp.train import Trainer, epoch_metrics
-
-    (run_dir / "config.json").write_text(json.dumps(dataclasses.asdict(exp.config), indent=1))
-    trainer = Trainer(exp.config)
-    state = trainer.init()
-    history = []
-    with open(run_dir / "metrics.jsonl", "w") as log:
-        for _ in range(exp.config.epochs):
-            start = time.perf_counter()
-            state, stats = trainer.train_epoch(state)
-            jax.block_until_ready(state)
-            metrics = epoch_metrics(trainer, state, stats, time.perf_counter() - start)
-            log.write(json.dumps(metrics) + "\n")
-            log.flush()
-            print(_epoch_line(metrics), flush=True)
-            history.append(metrics)
-    return history
-
-
 COMMANDS = {"rollout": (RolloutExperiment, rollout)}
-
-
-def _run(command, cfg) -> None:
-    try:
-        command(cfg)
-    except ConfigError as err:
-        print(f"mjx-emp: invalid configuration: {err}", file=sys.stderr)
-        sys.exit(2)
 
 
 def main(argv: list[str] | None = None) -> None:
     """Entry point of the ``mjx-emp`` console script.
 
     ``mjx-emp train PRESET [--field value ...]`` trains a preset (``mjx-emp presets`` lists
-    them); ``mjx-emp rollout`` runs a random-init agent.
+    them), ``mjx-emp train --resume RUN_DIR`` continues a run, ``mjx-emp rollout`` runs a
+    random-init agent.
     """
     argv = sys.argv[1:] if argv is None else list(argv)
     if argv[:1] == ["presets"]:
@@ -165,13 +110,17 @@ def main(argv: list[str] | None = None) -> None:
             print(f"{name:24s} {description}")
         return
     if argv[:1] == ["train"]:
+        if any(arg == "--resume" or arg.startswith("--resume=") for arg in argv[1:]):
+            exp = tyro.cli(ResumeExperiment, args=argv[1:], prog="mjx-emp train --resume")
+            main_guarded(run.resume, exp)
+            return
         presets = {name: (desc, TrainExperiment(config=cfg)) for name, (desc, cfg) in PRESETS.items()}
         exp = tyro.extras.overridable_config_cli(presets, args=argv[1:], prog="mjx-emp train")
-        _run(train, exp)
+        main_guarded(run.start, exp)
         return
     configs = {name: config for name, (config, _) in COMMANDS.items()}
     cfg = tyro.extras.subcommand_cli_from_dict(configs, args=argv, prog="mjx-emp")
-    _run(next(run for config, run in COMMANDS.values() if isinstance(cfg, config)), cfg)
+    main_guarded(next(command for config, command in COMMANDS.values() if isinstance(cfg, config)), cfg)
 
 
 if __name__ == "__main__":

@@ -149,3 +149,12 @@ def check_train_config(cfg: TrainConfig) -> None:
     for name in ("action_noise", "goal_noise", "gs_noise"):
         if getattr(cfg, name) < 0:
             raise ConfigError(f"{name}: must be >= 0; got {getattr(cfg, name)}")
+
+
+def config_from_dict(values: dict) -> TrainConfig:
+    """Rebuild a TrainConfig from its JSON form (lists back to tuples); unknown fields are an error."""
+    fields = {f.name: f for f in dataclasses.fields(TrainConfig)}
+    unknown = sorted(set(values) - set(fields))
+    if unknown:
+        raise ConfigError(f"{unknown[0]}: not a TrainConfig field; allowed: {sorted(fields)}")
+    return TrainConfig(**{name: tuple(v) if isinstance(v, list) else v for name, v in values.items()})

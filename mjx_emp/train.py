@@ -626,3 +626,26 @@ def epoch_metrics(trainer: Trainer, state: TrainState, stats: ItemStats, seconds
         "env_steps_per_s": steps / seconds if seconds > 0 else None,
         "levels": levels,
     }
+
+
+@jax.jit
+def _finite_learners(state: TrainState) -> jax.Array:
+    leaves = [x for x in jax.tree.leaves((state.gc, state.gs)) if jnp.issubdtype(x.dtype, jnp.floating)]
+    return jnp.stack([jnp.all(jnp.isfinite(x)) for x in leaves]).all()
+
+
+def divergence(state: TrainState, stats: ItemStats) -> str | None:
+    """Why this epoch's result must not be kept (a non-finite loss or parameter), or None.
+
+    Start-refresh and evaluation items carry NaN losses by design and are not checked.
+    """
+    s = jax.tree.map(np.asarray, stats)
+    for i in np.flatnonzero((s.mode == MODE_GC) | (s.mode == MODE_GS)):
+        for name in ("critic_loss", "actor_loss"):
+            value = getattr(s, name)[i]
+            if not np.isfinite(value):
+                kind = "goal-conditioned" if s.mode[i] == MODE_GC else "goal-space"
+                return f"level {int(s.root[i])} {kind} {name.replace('_', ' ')} is {value}"
+    if not bool(_finite_learners(state)):
+        return "a network parameter or optimizer state is not finite"
+    return None

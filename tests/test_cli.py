@@ -29,6 +29,10 @@ def cli(*args: str) -> subprocess.CompletedProcess:
         (["train", "point-mass-k1", "--sigma-gs", "-1"], "sigma_gs"),
         (["train", "point-mass-k1", "--env", "maze"], "env"),
         (["train", "point-mass-k1", "--run-dir", "/proc/mjx-emp-cannot-write"], "run_dir"),
+        (["train", "point-mass-k1", "--n"], "n"),
+        (["train", "point-mass-k1", "--keep-checkpoints", "0"], "keep_checkpoints"),
+        (["train", "--resume", "/nonexistent/mjx-emp-run"], "resume"),
+        (["train", "--resume", "/nonexistent/mjx-emp-run", "--seed", "3"], "--seed"),  # not resumable
     ],
 )
 def test_bad_config_exits_2_naming_the_field(args, field):
@@ -41,6 +45,16 @@ def test_help_explains_fields():
     result = cli("rollout", "--help")
     assert result.returncode == 0
     assert "Max actions per level" in result.stdout
+    result = cli("train", "point-mass-k2", "--help")
+    assert result.returncode == 0
+    for text in ("Maximum number of actions per level", "--keep-checkpoints", "--run-dir", "Polyak"):
+        assert text in result.stdout
+
+
+def test_train_refuses_a_run_dir_that_holds_a_run(tmp_path):
+    (tmp_path / "metrics.jsonl").write_text("")
+    result = cli("train", "point-mass-k1", "--run-dir", str(tmp_path))
+    assert result.returncode == 2 and "run_dir" in result.stderr and "--resume" in result.stderr
 
 
 def test_rollout_main_job_reports_statistics():

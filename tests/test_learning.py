@@ -1,6 +1,9 @@
 """Phase 1 learns on the point-mass CPU default: the goal space grows and stays reachable."""
 
+import os
+
 import jax
+import pytest
 
 from mjx_emp.experiments.presets import POINT_MASS_K1
 from mjx_emp.train import Trainer
@@ -16,3 +19,16 @@ def test_point_mass_default_grows_its_goal_space_and_reaches_it():
     assert final >= 10 * initial, f"goal space grew {final / initial:.1f}x"
     result = trainer.evaluate(state, 0, jax.random.key(7), rounds=8)  # 512 episodes
     assert result["success"] >= 0.8, result
+
+
+@pytest.mark.skipif(os.environ.get("MJX_EMP_SLOW") != "1",
+                    reason="about 11 minutes of CPU; run with MJX_EMP_SLOW=1")
+def test_two_levels_learn_a_larger_top_goal_space_than_one_for_the_same_env_steps():
+    from mjx_emp.experiments.compare_levels import compare
+
+    result = compare()
+    two, one = result["k2"], result["k1"]
+    assert one["env_steps"] >= two["env_steps"]  # k=1 gets at least as much experience
+    assert two["n"][0] == one["n"][0]
+    assert two["top_goal_space"]["volume"] > one["top_goal_space"]["volume"], result
+    assert two["top_success"] >= 0.8, result  # a larger box that is also reached

@@ -1,0 +1,259 @@
+"""Orbax checkpoints of the whole phase-1 train state, one per curriculum epoch.
+
+A checkpoint holds every array of ``TrainState`` (parameters, target parameters, optimizer
+states, replay, goal-space and start-state buffers, the start chain's simulator state, RNG keys
+as ``jax.random.key_data``, epoch and step counters), packed into one flat array per dtype
+(item ``state``), the path, shape and dtype of each array (item ``layout``, JSON) and the
+``TrainConfig`` (item ``config``, JSON). ``Checkpoints.restore`` gives the pytree back. Orbax
+writes each step into a temporary directory and renames it when complete, so a process killed
+mid-write leaves the previous checkpoint as the latest one; the half-written directory is
+ignored and cleaned up when the run directory is next opened.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import time
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import orbax.checkpoint as ocp
+
+from mjx_emp.config import TrainConfig, config_from_dict
+
+CHECKPOINT_SUBDIR = "checkpoints"
+REJECTED_SUBDIR = "rejected-checkpoints"
+RESUMABLE_CHANGES = ("epochs",)
+"""Config fields a resumed run may change: they do not alter what one epoch computes."""
+
+
+class CheckpointError(RuntimeError):
+    """A checkpoint cannot be used; the message names the file and what is wrong with it."""
+
+
+def _is_key(leaf: Any) -> bool:
+    return jnp.issubdtype(leaf.dtype, jax.dtypes.prng_key)
+
+
+def layout_of(tree: Any) -> list[dict]:
+    """Each array's path, shape, dtype and whether it is a PRNG key (stored as its key data).
+
+    Works on arrays and on ``jax.eval_shape`` structs alike, so a config's layout is known
+    without building its state.
+    """
+    layout = []
+    for path, leaf in jax.tree_util.tree_leaves_with_path(tree):
+        key = _is_key(leaf)
+        if key:
+            leaf = jax.eval_shape(jax.random.key_data, leaf)
+        layout.append({"path": jax.tree_util.keystr(path), "shape": list(leaf.shape),
+                       "dtype": np.dtype(leaf.dtype).name, "key": key})
+    return layout
+
+
+def pack(tree: Any) -> dict[str, np.ndarray]:
+    """Host copy of a pytree as one flat array per dtype, in ``layout_of`` order.
+
+    A few large arrays write far faster than hundreds of small ones (orbax pays about a
+    millisecond per array), and the copy is taken now, so the device buffers may be donated
+    while the write finishes in the background. PRNG keys go in as their raw key data; dtype
+    groups with no elements are left out (orbax refuses zero-size arrays).
+    """
+    groups: dict[str, list[np.ndarray]] = {}
+    for leaf in jax.tree.leaves(tree):
+        if _is_key(leaf):
+            leaf = jax.random.key_data(leaf)
+        host = np.asarray(leaf)
+        groups.setdefault(host.dtype.name, []).append(host.ravel())
+    packed = {name: np.concatenate(parts) for name, parts in groups.items()}  # concatenate copies
+    return {name: array for name, array in packed.items() if array.size}
+
+
+def packed_shapes(layout: list[dict]) -> dict[str, jax.ShapeDtypeStruct]:
+    """The flat per-dtype arrays that ``pack`` makes for a state of this layout."""
+    sizes: dict[str, int] = {}
+    for entry in layout:
+        sizes[entry["dtype"]] = sizes.get(entry["dtype"], 0) + int(np.prod(entry["shape"]))
+    return {name: jax.ShapeDtypeStruct((size,), np.dtype(name)) for name, size in sizes.items() if size}
+
+
+def unpack(packed: dict[str, Any], template: Any) -> Any:
+    """Inverse of ``pack``: ``template`` (a state or its ``jax.eval_shape``) gives the structure."""
+    offsets = dict.fromkeys(packed, 0)
+    host = {name: np.asarray(array) for name, array in packed.items()}
+    leaves, treedef = jax.tree.flatten(template)
+    rebuilt = []
+    for like, entry in zip(leaves, layout_of(template)):
+        size = int(np.prod(entry["shape"]))
+        if size:
+            start = offsets[entry["dtype"]]
+            offsets[entry["dtype"]] = start + size
+            value = jnp.asarray(host[entry["dtype"]][start:start + size].reshape(entry["shape"]))
+        else:
+            value = jnp.zeros(entry["shape"], entry["dtype"])
+        if entry["key"]:
+            impl = jax.random.key_impl(like) if isinstance(like, jax.Array) else None
+            value = jax.random.wrap_key_data(value, impl=impl)
+        rebuilt.append(value)
+    return jax.tree.unflatten(treedef, rebuilt)
+
+
+def layout_mismatch(saved: list[dict], expected: list[dict]) -> str | None:
+    """The first array whose path, shape or dtype differs between two layouts, or None."""
+    for have, want in zip(saved, expected):
+        if have != want:
+            return f"array {have['path']} is {have['shape']} {have['dtype']}, expected {want['shape']} {want['dtype']}"
+    if len(saved) != len(expected):
+        return f"{len(saved)} arrays, expected {len(expected)}"
+    return None
+
+
+def config_mismatches(saved: dict, expected: TrainConfig) -> list[str]:
+    """Fields (other than the resumable ones) whose saved value differs from ``expected``."""
+    want = json.loads(json.dumps(dataclasses.asdict(expected)))
+    fields = sorted(set(saved) | set(want))
+    return [
+        f"{name}: checkpoint has {saved.get(name, '(missing)')}, run has {want.get(name, '(missing)')}"
+        for name in fields
+        if name not in RESUMABLE_CHANGES and saved.get(name) != want.get(name)
+    ]
+
+
+@dataclasses.dataclass
+class Checkpoints:
+    """The checkpoints of one run directory: save every epoch, restore the latest good one."""
+
+    run_dir: Path
+    keep: int = 3
+    manager: ocp.CheckpointManager = dataclasses.field(init=False, repr=False)
+
+    def __post_init__(self):
+        if self.keep < 1:
+            raise ValueError(f"keep_checkpoints: must be >= 1; got {self.keep}")
+        options = ocp.CheckpointManagerOptions(
+            max_to_keep=self.keep, cleanup_tmp_directories=True, enable_async_checkpointing=True,
+        )
+        self.manager = ocp.CheckpointManager(
+            self.directory.absolute(), options=options, item_names=("state", "layout", "config"),
+        )
+
+    @property
+    def directory(self) -> Path:
+        return Path(self.run_dir) / CHECKPOINT_SUBDIR
+
+    def step_dir(self, epoch: int) -> Path:
+        """Where the checkpoint of ``epoch`` lives."""
+        return self.directory / str(epoch)
+
+    def epochs(self) -> list[int]:
+        """Epochs with a complete checkpoint, oldest first."""
+        return sorted(self.manager.all_steps())
+
+    def save(self, epoch: int, state: Any, config: TrainConfig) -> float:
+        """Start writing ``state`` as ``epoch``'s checkpoint; returns the seconds this call blocked.
+
+        The write finishes in the background; ``wait`` blocks until it is on disk.
+        """
+        start = time.perf_counter()
+        self.manager.save(epoch, args=ocp.args.Composite(
+            state=ocp.args.StandardSave(pack(state)),
+            layout=ocp.args.JsonSave(layout_of(state)),
+            config=ocp.args.JsonSave(dataclasses.asdict(config)),
+        ))
+        return time.perf_counter() - start
+
+    def wait(self) -> None:
+        """Block until every started save is committed to disk."""
+        self.manager.wait_until_finished()
+
+    def close(self) -> None:
+        """Finish pending writes and release orbax's background threads."""
+        self.manager.close()
+
+    def __enter__(self) -> Checkpoints:
+        return self
+
+    def __exit__(self, *exc_info) -> None:
+        self.close()
+
+    def read_config(self, epoch: int) -> TrainConfig:
+        """The TrainConfig stored with ``epoch``'s checkpoint."""
+        path = self.step_dir(epoch) / "config"
+        try:
+            saved = self.manager.restore(epoch, args=ocp.args.Composite(config=ocp.args.JsonRestore())).config
+            return config_from_dict(saved)
+        except Exception as err:  # orbax and JSON raise many types; all mean "unreadable"
+            raise CheckpointError(f"{path}: unreadable config ({type(err).__name__}: {err})") from err
+
+    def restore(self, epoch: int, template: Any, expected: TrainConfig) -> Any:
+        """Epoch ``epoch``'s state, checked against ``expected`` (the run's config).
+
+        ``template`` is a state (or its ``jax.eval_shape``) of the expected config.
+        """
+        step_dir = self.step_dir(epoch)
+        saved = dataclasses.asdict(self.read_config(epoch))
+        mismatches = config_mismatches(json.loads(json.dumps(saved)), expected)
+        if mismatches:
+            raise CheckpointError(f"{step_dir / 'config'} does not match the run's config.json: " + "; ".join(mismatches))
+        layout = layout_of(template)
+        try:
+            saved_layout = self.manager.restore(epoch, args=ocp.args.Composite(layout=ocp.args.JsonRestore())).layout
+        except Exception as err:  # orbax and JSON raise many types; all mean "unreadable"
+            raise CheckpointError(f"{step_dir / 'layout'}: unreadable ({type(err).__name__}: {err})") from err
+        mismatch = layout_mismatch(saved_layout, layout)
+        if mismatch:
+            raise CheckpointError(f"{step_dir / 'layout'} does not fit this version's train state: {mismatch}")
+        try:
+            restored = self.manager.restore(epoch, args=ocp.args.Composite(
+                state=ocp.args.StandardRestore(packed_shapes(layout)),
+            ))
+        except Exception as err:  # truncated or missing files surface as many error types
+            reason = str(err).split(" [tensorstore_spec=")[0]  # drop tensorstore's long spec dump
+            raise CheckpointError(f"{step_dir / 'state'}: unreadable ({type(err).__name__}: {reason})") from err
+        return unpack(restored.state, template)
+
+    def restore_latest(self, template: Any, expected: TrainConfig, fallback: bool = False) -> tuple[int, Any]:
+        """The newest checkpoint that restores, as ``(epoch, state)``.
+
+        Without ``fallback`` a bad newest checkpoint raises CheckpointError; with it, older
+        checkpoints are tried in turn (each skipped one is logged).
+        """
+        epochs = self.epochs()
+        if not epochs:
+            raise CheckpointError(f"{self.directory}: no complete checkpoint to resume from")
+        errors = []
+        for epoch in reversed(epochs):
+            try:
+                state = self.restore(epoch, template, expected)
+                self._set_aside_newer_than(epoch)
+                return epoch, state
+            except CheckpointError as err:
+                if not fallback:
+                    older = [e for e in epochs if e < epoch]
+                    hint = f" (pass --fallback to use an older one: epochs {older})" if older else ""
+                    raise CheckpointError(f"{err}{hint}") from err
+                logging.warning("skipping checkpoint of epoch %d: %s", epoch, err)
+                errors.append(str(err))
+        raise CheckpointError("no checkpoint restores: " + " | ".join(errors))
+
+    def _set_aside_newer_than(self, epoch: int) -> None:
+        """Move checkpoints newer than ``epoch`` (skipped as unusable) to RUN_DIR/rejected-checkpoints.
+
+        They are kept for inspection, not deleted, and no longer block the resumed run from
+        writing those epochs again.
+        """
+        newer = [e for e in self.epochs() if e > epoch]
+        if not newer:
+            return
+        rejected = Path(self.run_dir) / REJECTED_SUBDIR
+        rejected.mkdir(exist_ok=True)
+        for e in newer:
+            target = rejected / f"{e}-{time.strftime('%Y%m%d-%H%M%S')}"
+            self.step_dir(e).rename(target)
+            logging.warning("moved unusable checkpoint of epoch %d to %s", e, target)
+        self.manager.reload()

@@ -1,0 +1,232 @@
+"""A phase-1 training run in its run directory: config, metrics, checkpoints, progress.
+
+Layout of RUN_DIR: ``config.json`` (the resolved TrainConfig), ``metrics.jsonl`` (one JSON
+line per finished epoch) and ``checkpoints/<epoch>/`` (orbax; epoch 0 is the initial state).
+An epoch is kept only once its losses and parameters are finite; a run stopped at any point
+(crash, SIGKILL, NaN) resumes from its newest complete checkpoint and then computes exactly
+what the uninterrupted run would have.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import json
+import os
+import sys
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+from mjx_emp.config import ConfigError, TrainConfig, check_train_config, config_from_dict
+from mjx_emp.experiments.train import ResumeExperiment, TrainExperiment
+
+CONFIG_FILE = "config.json"
+METRICS_FILE = "metrics.jsonl"
+
+
+class TrainingDiverged(RuntimeError):
+    """An epoch produced a non-finite loss or parameter; the run stopped before keeping it."""
+
+
+def default_run_dir(cfg: TrainConfig) -> str:
+    """A fresh run directory name: runs/<env>-k<k>-<date>-<time>."""
+    return f"runs/{cfg.env}-k{cfg.k}-{time.strftime('%Y%m%d-%H%M%S')}"
+
+
+def prepare_run_dir(path: str) -> Path:
+    """Create the run directory, or fail with a ConfigError naming run_dir."""
+    run_dir = Path(path)
+    try:
+        run_dir.mkdir(parents=True, exist_ok=True)
+        probe = run_dir / ".write-test"
+        probe.write_text("")
+        probe.unlink()
+    except OSError as err:
+        raise ConfigError(f"run_dir: cannot write to {str(run_dir)!r} ({err.strerror})") from err
+    return run_dir
+
+
+def write_atomically(path: Path, text: str) -> None:
+    """Replace ``path`` with ``text`` so that a reader (or a crash) sees the old or the new file."""
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "w") as f:
+        f.write(text)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+def read_run_config(run_dir: Path) -> TrainConfig:
+    """The TrainConfig saved in a run directory; errors name the file (field ``resume``)."""
+    path = run_dir / CONFIG_FILE
+    try:
+        return config_from_dict(json.loads(path.read_text()))
+    except FileNotFoundError as err:
+        raise ConfigError(f"resume: {str(run_dir)!r} has no {CONFIG_FILE}; is it a run directory?") from err
+    except (json.JSONDecodeError, TypeError, ConfigError) as err:
+        raise ConfigError(f"resume: {path} is not a valid run config ({err})") from err
+
+
+def keep_metrics_through(path: Path, epoch: int) -> None:
+    """Drop metric lines of epochs after ``epoch`` (written after the checkpoint we resume from)."""
+    if not path.exists():
+        return
+    lines = [line for line in path.read_text().splitlines() if line.strip()]
+    kept = []
+    for line in lines:
+        try:
+            if json.loads(line)["epoch"] <= epoch:
+                kept.append(line)
+        except (json.JSONDecodeError, KeyError):
+            break  # a line cut short by a kill: nothing after it is trustworthy
+    write_atomically(path, "".join(line + "\n" for line in kept))
+
+
+def epoch_line(metrics: dict) -> str:
+    """One human-readable line of an epoch's metrics."""
+    levels = "  ".join(
+        f"L{m['level']} volume {m['volume']:.3g} success {m['success']:.2f}"
+        if m["success"] is not None else f"L{m['level']} volume {m['volume']:.3g}"
+        for m in metrics["levels"]
+    )
+    return (f"epoch {metrics['epoch']:4d}  {metrics['env_steps']:.3g} env steps  "
+            f"{metrics['env_steps_per_s']:.3g} steps/s  {levels}")
+
+
+@contextlib.contextmanager
+def progress_reporter(total_epochs: int, first_epoch: int) -> Iterator[Callable[[dict], None]]:
+    """Report each epoch: a live progress bar on a terminal, one plain line per epoch otherwise."""
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+    console = Console()
+    if not console.is_terminal:
+        yield lambda metrics: print(epoch_line(metrics), flush=True)
+        return
+    columns = (TextColumn("epoch"), MofNCompleteColumn(), BarColumn(), TimeRemainingColumn(),
+               TextColumn("{task.fields[info]}"))
+    with Progress(*columns, console=console) as bar:
+        task = bar.add_task("train", total=total_epochs, completed=first_epoch, info="compiling")
+
+        def report(metrics: dict) -> None:
+            top = metrics["levels"][-1]
+            info = (f"{metrics['env_steps']:.3g} env steps  {metrics['env_steps_per_s']:.3g} steps/s  "
+                    f"top volume {top['volume']:.3g}"
+                    + (f"  success {top['success']:.2f}" if top["success"] is not None else ""))
+            bar.update(task, completed=metrics["epoch"], info=info)
+
+        yield report
+
+
+def train_epochs(trainer, state, checkpoints, run_dir: Path, report: Callable[[dict], None]):
+    """Train until ``trainer.cfg.epochs``, checkpointing and logging each finished epoch.
+
+    Raises TrainingDiverged, without saving, when an epoch's losses or parameters are not
+    finite; the newest checkpoint is then the last good epoch.
+    """
+    import jax
+
+    from mjx_emp.train import divergence, epoch_metrics
+
+    cfg = trainer.cfg
+    with open(run_dir / METRICS_FILE, "a") as log:
+        while int(state.epoch) < cfg.epochs:
+            start = time.perf_counter()
+            state, stats = trainer.train_epoch(state)
+            jax.block_until_ready(state)
+            seconds = time.perf_counter() - start
+            epoch = int(state.epoch)
+            problem = divergence(state, stats)
+            if problem:
+                checkpoints.wait()
+                kept = checkpoints.epochs()
+                raise TrainingDiverged(
+                    f"epoch {epoch}: {problem}. Stopped without saving this epoch; the last good "
+                    f"checkpoint is epoch {kept[-1] if kept else None} in {checkpoints.directory}"
+                )
+            save_seconds = checkpoints.save(epoch, state, cfg)
+            metrics = epoch_metrics(trainer, state, stats, seconds)
+            metrics["checkpoint_s"] = save_seconds
+            log.write(json.dumps(metrics) + "\n")
+            log.flush()
+            report(metrics)
+    checkpoints.wait()
+    return state
+
+
+def _holds_a_run(run_dir: Path) -> bool:
+    from mjx_emp.checkpoint import CHECKPOINT_SUBDIR
+
+    return (run_dir / METRICS_FILE).exists() or (run_dir / CHECKPOINT_SUBDIR).exists()
+
+
+def start(exp: TrainExperiment):
+    """Train a new run; returns the final TrainState."""
+    check_train_config(exp.config)
+    if exp.keep_checkpoints < 1:
+        raise ConfigError(f"keep_checkpoints: must be >= 1; got {exp.keep_checkpoints}")
+    run_dir = prepare_run_dir(exp.run_dir or default_run_dir(exp.config))
+    if _holds_a_run(run_dir):
+        raise ConfigError(
+            f"run_dir: {str(run_dir)!r} already holds a run; continue it with "
+            f"`mjx-emp train --resume {run_dir}` or choose another --run-dir"
+        )
+    from mjx_emp.checkpoint import Checkpoints
+    from mjx_emp.train import Trainer
+
+    print(f"run directory: {run_dir}", flush=True)
+    write_atomically(run_dir / CONFIG_FILE, json.dumps(dataclasses.asdict(exp.config), indent=1))
+    trainer = Trainer(exp.config)
+    state = trainer.init()
+    checkpoints = Checkpoints(run_dir, exp.keep_checkpoints)
+    try:
+        checkpoints.save(0, state, exp.config)
+        with progress_reporter(exp.config.epochs, 0) as report:
+            return train_epochs(trainer, state, checkpoints, run_dir, report)
+    finally:
+        checkpoints.close()
+
+
+def resume(exp: ResumeExperiment):
+    """Continue a run from its newest good checkpoint; returns the final TrainState."""
+    run_dir = Path(exp.resume)
+    cfg = read_run_config(run_dir)
+    if exp.epochs is not None:
+        cfg = dataclasses.replace(cfg, epochs=exp.epochs)
+    check_train_config(cfg)
+    if exp.keep_checkpoints < 1:
+        raise ConfigError(f"keep_checkpoints: must be >= 1; got {exp.keep_checkpoints}")
+    import jax
+
+    from mjx_emp.checkpoint import Checkpoints
+    from mjx_emp.train import Trainer
+
+    trainer = Trainer(cfg)
+    checkpoints = Checkpoints(run_dir, exp.keep_checkpoints)
+    try:
+        epoch, state = checkpoints.restore_latest(jax.eval_shape(trainer.init), cfg, exp.fallback)
+        print(f"resuming {run_dir} from epoch {epoch}", flush=True)
+        keep_metrics_through(run_dir / METRICS_FILE, epoch)
+        write_atomically(run_dir / CONFIG_FILE, json.dumps(dataclasses.asdict(cfg), indent=1))
+        with progress_reporter(cfg.epochs, epoch) as report:
+            return train_epochs(trainer, state, checkpoints, run_dir, report)
+    finally:
+        checkpoints.close()
+
+
+def main_guarded(command: Callable, exp) -> None:
+    """Run a CLI command; bad input exits 2 and divergence 1, each with a one-line reason."""
+    from mjx_emp.checkpoint import CheckpointError
+
+    try:
+        command(exp)
+    except ConfigError as err:
+        print(f"mjx-emp: invalid configuration: {err}", file=sys.stderr)
+        sys.exit(2)
+    except CheckpointError as err:
+        print(f"mjx-emp: unusable checkpoint: {err}", file=sys.stderr)
+        sys.exit(2)
+    except TrainingDiverged as err:
+        print(f"mjx-emp: training diverged: {err}", file=sys.stderr)
+        sys.exit(1)

@@ -1,0 +1,20 @@
+"""Test-session set-up: one persistent XLA compilation cache for this process and its children.
+
+Identical programs (the same config compiled by several tests, or by CLI subprocesses) then
+compile once per session; what they compute is unchanged. The cache lives in a temporary
+directory, so every session starts cold, as CI does.
+"""
+
+import atexit
+import os
+import shutil
+import sys
+import tempfile
+from pathlib import Path
+
+_CACHE = tempfile.mkdtemp(prefix="mjx-emp-xla-cache-")
+atexit.register(shutil.rmtree, _CACHE, ignore_errors=True)
+os.environ["JAX_COMPILATION_CACHE_DIR"] = _CACHE
+os.environ["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] = "1"
+
+sys.path.insert(0, str(Path(__file__).parent))  # shared helpers such as tiny.py
