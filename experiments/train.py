@@ -34,7 +34,6 @@ class ResumeExperiment:
     epochs: int | None = None
     """New total number of epochs (default: the run's own). The only setting a resume may change."""
     fallback: bool = False
-    """If the newest checkpoint is unreadable or does not match the run's config, use the newest
-    older one that restores (default: stop with an error naming the file)."""
+    """If the newest checkpoint is unusable, resume from the newest one that restores."""
     keep_checkpoints: int = 3
     """How many of the newest epoch checkpoints to keep."""
