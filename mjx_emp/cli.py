@@ -8,11 +8,13 @@ from __future__ import annotations
 import json
 import sys
 import time
+from pathlib import Path
 
 import tyro
 
 from mjx_emp import run
 from mjx_emp.config import ConfigError, check_levels
+from mjx_emp.experiments.plot import PlotExperiment
 from mjx_emp.experiments.presets import PRESETS
 from mjx_emp.experiments.rollout import RolloutExperiment
 from mjx_emp.experiments.train import ResumeExperiment, TrainExperiment
@@ -94,7 +96,17 @@ def rollout(cfg: RolloutExperiment) -> None:
     print(json.dumps(run_rollout(cfg), indent=1))
 
 
-COMMANDS = {"rollout": (RolloutExperiment, rollout)}
+def plot(exp: PlotExperiment) -> None:
+    """Draw a run's goal-space growth (volume and success per level against epoch)."""
+    from mjx_emp.plots import plot_goal_space_growth, read_metrics
+
+    run_dir = Path(exp.run_dir)
+    if not (run_dir / run.METRICS_FILE).exists():
+        raise ConfigError(f"run_dir: {str(run_dir)!r} has no {run.METRICS_FILE}; is it a run directory?")
+    print(plot_goal_space_growth(read_metrics(run_dir), run_dir / "plots" / "goal_space_growth.png"))
+
+
+COMMANDS = {"rollout": (RolloutExperiment, rollout), "plot": (PlotExperiment, plot)}
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -102,7 +114,7 @@ def main(argv: list[str] | None = None) -> None:
 
     ``mjx-emp train PRESET [--field value ...]`` trains a preset (``mjx-emp presets`` lists
     them), ``mjx-emp train --resume RUN_DIR`` continues a run, ``mjx-emp rollout`` runs a
-    random-init agent.
+    random-init agent, ``mjx-emp plot RUN_DIR`` draws a run's goal-space growth.
     """
     argv = sys.argv[1:] if argv is None else list(argv)
     if argv[:1] == ["presets"]:

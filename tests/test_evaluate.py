@@ -1,0 +1,69 @@
+"""The paper's evaluation metric and the run pictures, on trajectories with known answers."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from mjx_emp.evaluate import mean_and_stderr, min_distance_to_goal
+from mjx_emp import cli
+from mjx_emp.plots import plot_goal_space_growth
+
+
+def test_min_distance_is_the_closest_approach_of_each_episode():
+    # Episode 0 walks along x toward (3, 4) and passes closest at (3, 0): distance 4.
+    # Episode 1 reaches its goal exactly at step 2, then leaves.
+    positions = np.array([
+        [[0.0, 0.0], [1.0, 1.0]],
+        [[3.0, 0.0], [2.0, 2.0]],
+        [[6.0, 0.0], [3.0, 3.0]],
+    ])
+    goals = np.array([[3.0, 4.0], [3.0, 3.0]])
+    assert min_distance_to_goal(positions, goals).tolist() == [4.0, 0.0]
+
+
+def test_min_distance_ignores_steps_outside_the_episode():
+    positions = np.array([[[5.0]], [[0.0]]])  # 1-D goal space (Half Cheetah), one episode
+    goals = np.array([[0.0]])
+    valid = np.array([[True], [False]])
+    assert min_distance_to_goal(positions, goals, valid).tolist() == [5.0]
+    assert min_distance_to_goal(positions, goals, np.zeros((2, 1), bool)).tolist() == [math.inf]
+
+
+def test_min_distance_rejects_mismatched_shapes():
+    with pytest.raises(ValueError, match="positions must be"):
+        min_distance_to_goal(np.zeros((4, 2, 2)), np.zeros((3, 2)))
+
+
+def test_mean_and_standard_error_over_seeds():
+    result = mean_and_stderr([1.0, 2.0, 3.0, 6.0])
+    assert result["mean"] == 3.0 and result["count"] == 4
+    assert result["stderr"] == pytest.approx(np.std([1, 2, 3, 6], ddof=1) / 2)
+    assert mean_and_stderr([2.5]) == {"mean": 2.5, "stderr": 0.0, "count": 1}
+
+
+def test_goal_space_growth_plot_is_a_png_image(tmp_path):
+    from PIL import Image
+
+    metrics = [
+        {"epoch": e, "levels": [{"volume": 0.16 * 1.1 ** e, "success": None if e == 1 else 0.9},
+                                {"volume": 0.64 * 1.05 ** e, "success": 0.8}]}
+        for e in range(1, 21)
+    ]
+    path = plot_goal_space_growth(metrics, tmp_path / "plots" / "growth.png")
+    with Image.open(path) as image:
+        assert image.format == "PNG" and image.size == (700, 600)
+        assert np.unique(np.asarray(image.convert("L"))).size > 2  # curves were drawn, not a blank canvas
+
+
+def test_plot_command_draws_a_run_and_names_the_field_when_there_is_none(tmp_path, capsys):
+    lines = [{"epoch": e, "levels": [{"volume": 0.1 * e, "success": 0.5}]} for e in (1, 2, 3)]
+    (tmp_path / "metrics.jsonl").write_text("".join(json.dumps(m) + "\n" for m in lines))
+    cli.main(["plot", str(tmp_path)])
+    assert (tmp_path / "plots" / "goal_space_growth.png").stat().st_size > 0
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main(["plot", str(tmp_path / "missing")])
+    assert exit_info.value.code == 2 and "run_dir" in capsys.readouterr().err
