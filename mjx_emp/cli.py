@@ -16,6 +16,7 @@ from mjx_emp import run
 from mjx_emp.config import ConfigError, check_levels
 from mjx_emp.experiments.plot import PlotExperiment
 from mjx_emp.experiments.presets import PRESETS
+from mjx_emp.experiments.render import RenderExperiment
 from mjx_emp.experiments.rollout import RolloutExperiment
 from mjx_emp.experiments.train import ResumeExperiment, TrainExperiment
 from mjx_emp.run import main_guarded
@@ -106,7 +107,29 @@ def plot(exp: PlotExperiment) -> None:
     print(plot_goal_space_growth(read_metrics(run_dir), run_dir / "plots" / "goal_space_growth.png"))
 
 
-COMMANDS = {"rollout": (RolloutExperiment, rollout), "plot": (PlotExperiment, plot)}
+def render(exp: RenderExperiment) -> None:
+    """Write a GIF of a run's greedy top-level skill chain with every level's subgoal drawn."""
+    for name in ("steps", "width", "height"):
+        if getattr(exp, name) < 1:
+            raise ConfigError(f"{name}: must be >= 1; got {getattr(exp, name)}")
+    if not exp.fps > 0:
+        raise ConfigError(f"fps: must be > 0; got {exp.fps}")
+    import jax
+
+    from mjx_emp.render import record_skill_chain, render_frames, write_gif
+
+    trainer, epoch, state = run.load_run(Path(exp.run_dir))
+    recording = record_skill_chain(trainer, state, jax.random.key(exp.seed), exp.steps)
+    frames = render_frames(trainer.env, recording, exp.width, exp.height, exp.distance)
+    out = write_gif(frames, Path(exp.out or Path(exp.run_dir) / "skills.gif"), exp.fps)
+    print(f"{out}: {len(frames)} frames of {exp.width}x{exp.height} (epoch {epoch})")
+
+
+COMMANDS = {
+    "rollout": (RolloutExperiment, rollout),
+    "plot": (PlotExperiment, plot),
+    "render": (RenderExperiment, render),
+}
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -114,9 +137,14 @@ def main(argv: list[str] | None = None) -> None:
 
     ``mjx-emp train PRESET [--field value ...]`` trains a preset (``mjx-emp presets`` lists
     them), ``mjx-emp train --resume RUN_DIR`` continues a run, ``mjx-emp rollout`` runs a
-    random-init agent, ``mjx-emp plot RUN_DIR`` draws a run's goal-space growth.
+    random-init agent, ``mjx-emp plot RUN_DIR`` draws a run's goal-space growth and
+    ``mjx-emp render RUN_DIR`` writes a GIF of its skills.
     """
     argv = sys.argv[1:] if argv is None else list(argv)
+    if argv[:1] == ["render"]:
+        from mjx_emp.render import configure_headless_gl
+
+        configure_headless_gl()  # before anything imports mujoco
     if argv[:1] == ["presets"]:
         for name, (description, _) in PRESETS.items():
             print(f"{name:24s} {description}")

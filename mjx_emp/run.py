@@ -57,15 +57,15 @@ def write_atomically(path: Path, text: str) -> None:
     os.replace(tmp, path)
 
 
-def read_run_config(run_dir: Path) -> TrainConfig:
-    """The TrainConfig saved in a run directory; errors name the file (field ``resume``)."""
+def read_run_config(run_dir: Path, field: str = "resume") -> TrainConfig:
+    """The TrainConfig saved in a run directory; errors name the file and the CLI ``field``."""
     path = run_dir / CONFIG_FILE
     try:
         return config_from_dict(json.loads(path.read_text()))
     except FileNotFoundError as err:
-        raise ConfigError(f"resume: {str(run_dir)!r} has no {CONFIG_FILE}; is it a run directory?") from err
+        raise ConfigError(f"{field}: {str(run_dir)!r} has no {CONFIG_FILE}; is it a run directory?") from err
     except (json.JSONDecodeError, TypeError, ConfigError) as err:
-        raise ConfigError(f"resume: {path} is not a valid run config ({err})") from err
+        raise ConfigError(f"{field}: {path} is not a valid run config ({err})") from err
 
 
 def keep_metrics_through(path: Path, epoch: int) -> None:
@@ -188,6 +188,20 @@ def start(exp: TrainExperiment):
         checkpoints.close()
 
 
+def load_run(run_dir: Path, fallback: bool = False):
+    """A run's trainer and its newest good checkpoint: ``(trainer, epoch, state)``."""
+    import jax
+
+    from mjx_emp.checkpoint import Checkpoints
+    from mjx_emp.train import Trainer
+
+    cfg = read_run_config(Path(run_dir), field="run_dir")
+    trainer = Trainer(cfg)
+    with Checkpoints(Path(run_dir)) as checkpoints:
+        epoch, state = checkpoints.restore_latest(jax.eval_shape(trainer.init), cfg, fallback)
+    return trainer, epoch, state
+
+
 def resume(exp: ResumeExperiment):
     """Continue a run from its newest good checkpoint; returns the final TrainState."""
     run_dir = Path(exp.resume)
@@ -216,14 +230,18 @@ def resume(exp: ResumeExperiment):
 
 
 def main_guarded(command: Callable, exp) -> None:
-    """Run a CLI command; bad input exits 2 and divergence 1, each with a one-line reason."""
+    """Run a CLI command; bad input exits 2, divergence 1, no offscreen GL 3, each with a reason."""
     from mjx_emp.checkpoint import CheckpointError
+    from mjx_emp.render import RenderError
 
     try:
         command(exp)
     except ConfigError as err:
         print(f"mjx-emp: invalid configuration: {err}", file=sys.stderr)
         sys.exit(2)
+    except RenderError as err:
+        print(f"mjx-emp: cannot render: {err}", file=sys.stderr)
+        sys.exit(3)
     except CheckpointError as err:
         print(f"mjx-emp: unusable checkpoint: {err}", file=sys.stderr)
         sys.exit(2)

@@ -7,7 +7,6 @@ import json
 import os
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -15,7 +14,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from tiny import TINY, tiny_after_two_epochs, tiny_trainer
+from tiny import SMALL, TINY, mjx_emp, run_cli, tiny_after_two_epochs, tiny_trainer
 
 from mjx_emp import cli
 from mjx_emp.checkpoint import Checkpoints, CheckpointError, layout_of, layout_mismatch, pack, unpack
@@ -131,21 +130,6 @@ def test_metrics_after_the_resumed_epoch_are_dropped(tmp_path):
 
 
 # ---- the command line, in separate processes that are killed for real ---------------------
-
-# A large replay buffer makes each checkpoint write take long enough (~0.2 s) to be caught
-# in the act; both killing tests share this config, so they share one compilation.
-SMALL = ["point-mass-k1", "--num-envs", "8", "--hidden", "32", "32", "--batch-size", "32",
-         "--gc-iterations", "2", "--gc-grad-steps", "20", "--replay-capacity", "3000000",
-         "--start-chain", "2", "--epochs", "4"]
-
-
-def mjx_emp(*args: str) -> list[str]:
-    return [sys.executable, "-m", "mjx_emp.cli", *args]
-
-
-def run_cli(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run(mjx_emp(*args), capture_output=True, text=True, timeout=600)
-
 
 def kill_when(process: subprocess.Popen, ready, timeout: float = 300) -> None:
     """SIGKILL ``process`` as soon as ``ready()`` holds (polled every few milliseconds)."""

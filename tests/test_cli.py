@@ -33,6 +33,8 @@ def cli(*args: str) -> subprocess.CompletedProcess:
         (["train", "point-mass-k1", "--keep-checkpoints", "0"], "keep_checkpoints"),
         (["train", "--resume", "/nonexistent/mjx-emp-run"], "resume"),
         (["train", "--resume", "/nonexistent/mjx-emp-run", "--seed", "3"], "--seed"),  # not resumable
+        (["render", "/nonexistent/mjx-emp-run", "--steps", "0"], "steps"),
+        (["render", "/nonexistent/mjx-emp-run"], "run_dir"),  # not a run directory
     ],
 )
 def test_bad_config_exits_2_naming_the_field(args, field):

@@ -1,8 +1,10 @@
-"""A tiny two-level point-mass trainer shared by the test modules (compiled once per session)."""
+"""Small agents shared by the test modules: an in-process trainer and a CLI config."""
 
 from __future__ import annotations
 
 import functools
+import subprocess
+import sys
 
 import jax
 import numpy as np
@@ -33,3 +35,21 @@ def tiny_after_two_epochs():
     state, second = trainer.train_epoch(state)
     assert _jit_train_epoch._cache_size() == compiled, "epoch 2 recompiled"
     return trainer, initial, state, first, second
+
+
+# A CLI training config. Its large replay buffer makes each checkpoint write take long
+# enough (~0.1 s) to be caught in the act; every test that runs it (the checkpoint kills,
+# rendering) shares one compilation through the session's persistent cache.
+SMALL = ["point-mass-k1", "--num-envs", "8", "--hidden", "32", "32", "--batch-size", "32",
+         "--gc-iterations", "2", "--gc-grad-steps", "20", "--replay-capacity", "3000000",
+         "--start-chain", "2", "--epochs", "4"]
+
+
+def mjx_emp(*args: str) -> list[str]:
+    """The command line that runs ``mjx-emp ARGS`` with this interpreter."""
+    return [sys.executable, "-m", "mjx_emp.cli", *args]
+
+
+def run_cli(*args: str) -> subprocess.CompletedProcess:
+    """Run ``mjx-emp ARGS`` to completion, capturing its output."""
+    return subprocess.run(mjx_emp(*args), capture_output=True, text=True, timeout=600)

@@ -1,0 +1,120 @@
+"""Skill videos: a trained hierarchical agent from a checkpoint, rendered offscreen.
+
+The agent runs the same greedy chain of top-level skills that fills the start-state
+buffers: from the initial state, each top-level skill is drawn from the top goal space and
+executed by the levels below without exploration noise. Every primitive step becomes a
+frame, with each level's current subgoal drawn as a coloured sphere (level 0 yellow, then
+green, blue, magenta). Rendering uses MuJoCo's offscreen renderer, headless via EGL.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from pathlib import Path
+
+import numpy as np
+
+LEVEL_COLOURS = ((1.0, 0.8, 0.0, 0.9), (0.1, 0.75, 0.2, 0.9), (0.15, 0.35, 0.95, 0.9), (0.85, 0.1, 0.85, 0.9))
+HEADLESS_HELP = (
+    "offscreen OpenGL is unavailable. mjx-emp renders with MUJOCO_GL=egl (EGL_PLATFORM="
+    "surfaceless), which needs Mesa's EGL and DRI drivers (Debian/Ubuntu: apt install libegl1 "
+    "libgl1-mesa-dri); or install libosmesa6 and set MUJOCO_GL=osmesa"
+)
+
+
+class RenderError(RuntimeError):
+    """No offscreen OpenGL context could be made; the message says which system package helps."""
+
+
+def configure_headless_gl() -> None:
+    """Default MuJoCo to headless EGL rendering; call before ``mujoco`` is first imported."""
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    if os.environ["MUJOCO_GL"] == "egl":
+        os.environ.setdefault("EGL_PLATFORM", "surfaceless")
+
+
+@dataclasses.dataclass(frozen=True)
+class Recording:
+    """What the frames need, per primitive step: joint positions, mocap bodies, subgoals."""
+
+    qpos: np.ndarray  # [T, nq]
+    mocap_pos: np.ndarray  # [T, nmocap, 3]
+    goals: np.ndarray  # [T, k, goal_size], absolute h-coordinates
+
+
+def record_skill_chain(trainer, state, key, steps: int) -> Recording:
+    """Run the greedy chain of top-level skills for ``steps`` primitive steps in one environment."""
+    import jax
+    import jax.numpy as jnp
+
+    from mjx_emp.hierarchy import jit_init_rollout, jit_rollout
+    from mjx_emp.train import MODE_STARTS
+
+    k = trainer.cfg.k
+    params, start_params = trainer._rollout_inputs(state, jnp.int32(k), jnp.int32(MODE_STARTS))
+    h, start = trainer.hierarchy, trainer._start
+    rollout_state = jit_init_rollout(h, params, start, start_params, key, 1, k)
+    qpos, mocap, goals = [], [], []
+    for _ in range(steps):
+        rollout_state = jit_rollout(h, params, start, start_params, rollout_state, 1)[0]
+        data = jax.device_get(rollout_state.env.data)
+        qpos.append(np.asarray(data.qpos[0]))
+        mocap.append(np.asarray(data.mocap_pos[0]))
+        goals.append(np.stack([np.asarray(g[0]) for g in rollout_state.goals[:k]]))
+    return Recording(np.stack(qpos), np.stack(mocap), np.stack(goals))
+
+
+def marker_position(goal: np.ndarray, height: float = 0.1) -> np.ndarray:
+    """Where a subgoal is drawn: (x, y) goals on the floor plane, x-only goals on the y = 0 line."""
+    x, y = (goal[0], goal[1]) if goal.shape[0] >= 2 else (goal[0], 0.0)
+    return np.array([x, y, height])
+
+
+def render_frames(env, recording: Recording, width: int, height: int, distance: float) -> np.ndarray:
+    """RGB frames [T, height, width, 3] following the torso from above, subgoals as spheres."""
+    import mujoco
+
+    try:
+        renderer = mujoco.Renderer(env.mj_model, height, width)
+    except Exception as err:  # the GL backends raise various types when no context can be made
+        raise RenderError(f"{HEADLESS_HELP} ({type(err).__name__}: {err})") from err
+    data = mujoco.MjData(env.mj_model)
+    camera = mujoco.MjvCamera()
+    camera.type = mujoco.mjtCamera.mjCAMERA_FREE
+    camera.distance, camera.elevation, camera.azimuth = distance, -60.0, 90.0
+    frames = []
+    try:
+        for qpos, mocap_pos, goals in zip(recording.qpos, recording.mocap_pos, recording.goals):
+            data.qpos[:] = qpos
+            if env.mj_model.nmocap:
+                data.mocap_pos[:] = mocap_pos
+            mujoco.mj_forward(env.mj_model, data)
+            torso = marker_position(qpos[list(env.goal_qpos)], height=0.0)
+            camera.lookat[:] = torso
+            renderer.update_scene(data, camera)
+            scene = renderer.scene
+            for level, goal in enumerate(goals):
+                if scene.ngeom >= scene.maxgeom:
+                    break
+                mujoco.mjv_initGeom(
+                    scene.geoms[scene.ngeom], type=mujoco.mjtGeom.mjGEOM_SPHERE,
+                    size=np.array([0.08 * (level + 1), 0.0, 0.0]), pos=marker_position(goal),
+                    mat=np.eye(3).ravel(), rgba=np.array(LEVEL_COLOURS[level % len(LEVEL_COLOURS)]),
+                )
+                scene.ngeom += 1
+            frames.append(renderer.render().copy())
+    finally:
+        renderer.close()
+    return np.stack(frames)
+
+
+def write_gif(frames: np.ndarray, path: Path, fps: float) -> Path:
+    """Save frames as a looping GIF (Pillow, which matplotlib already brings)."""
+    from PIL import Image
+
+    images = [Image.fromarray(frame) for frame in frames]
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    images[0].save(path, save_all=True, append_images=images[1:], duration=int(1000 / fps), loop=0)
+    return path

@@ -1,0 +1,33 @@
+"""Skill videos: `mjx-emp render` turns a checkpoint into frames of the requested size."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from PIL import Image
+from tiny import SMALL, run_cli
+
+from mjx_emp.render import marker_position
+
+
+def test_markers_sit_on_the_floor_plane_for_2d_goals_and_on_the_x_axis_for_1d_goals():
+    assert marker_position(np.array([1.5, -2.0])).tolist() == [1.5, -2.0, 0.1]
+    assert marker_position(np.array([7.0]), height=0.3).tolist() == [7.0, 0.0, 0.3]
+
+
+def test_render_writes_frames_of_the_requested_size(tmp_path):
+    run_dir = tmp_path / "run"
+    trained = run_cli("train", *SMALL, "--epochs", "1", "--run-dir", str(run_dir))
+    assert trained.returncode == 0, trained.stderr
+    out = tmp_path / "skills.gif"
+    result = run_cli("render", str(run_dir), "--steps", "6", "--width", "64", "--height", "48", "--out", str(out))
+    if result.returncode == 3:  # the CLI's exit code for "no offscreen OpenGL on this machine"
+        pytest.skip(result.stderr.strip())
+    assert result.returncode == 0, result.stderr
+    with Image.open(out) as gif:
+        assert gif.n_frames == 6 and gif.size == (64, 48)
+        frames = []
+        for index in range(gif.n_frames):
+            gif.seek(index)
+            frames.append(np.asarray(gif.convert("RGB")))
+    assert all(frame.std() > 0 for frame in frames)  # a scene was drawn, not a blank image
