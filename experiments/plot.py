@@ -9,7 +9,8 @@ import tyro
 
 @dataclasses.dataclass(frozen=True)
 class PlotExperiment:
-    """Draw RUN_DIR/plots/goal_space_growth.png from RUN_DIR/metrics.jsonl."""
+    """Draw RUN_DIR/plots/: goal_space_growth.png from metrics.jsonl and, from the checkpoints,
+    goal_spaces_epoch0.png and goal_spaces.png (boxes per level with greedy skill chains)."""
 
     run_dir: tyro.conf.Positional[str]
     """Run directory written by `mjx-emp train`."""

@@ -98,13 +98,14 @@ def rollout(cfg: RolloutExperiment) -> None:
 
 
 def plot(exp: PlotExperiment) -> None:
-    """Draw a run's goal-space growth (volume and success per level against epoch)."""
-    from mjx_emp.plots import plot_goal_space_growth, read_metrics
+    """Draw a run's pictures into RUN_DIR/plots/ and print their paths."""
+    from mjx_emp.plots import plot_run
 
     run_dir = Path(exp.run_dir)
     if not (run_dir / run.METRICS_FILE).exists():
         raise ConfigError(f"run_dir: {str(run_dir)!r} has no {run.METRICS_FILE}; is it a run directory?")
-    print(plot_goal_space_growth(read_metrics(run_dir), run_dir / "plots" / "goal_space_growth.png"))
+    for path in plot_run(run_dir):
+        print(path)
 
 
 def render(exp: RenderExperiment) -> None:

@@ -1,9 +1,12 @@
-"""Pictures of a run (matplotlib, PNG): how each level's goal space grew over the epochs."""
+"""Pictures of a run (matplotlib, PNG): goal-space growth over epochs, and the learned
+goal-space boxes at the start state drawn over the arena with sample trajectories."""
 
 from __future__ import annotations
 
 import json
 from pathlib import Path
+
+import numpy as np
 
 
 def read_metrics(run_dir: Path) -> list[dict]:
@@ -12,12 +15,27 @@ def read_metrics(run_dir: Path) -> list[dict]:
     return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
 
 
-def plot_goal_space_growth(metrics: list[dict], path: Path) -> Path:
-    """Goal-space volume (log scale) and greedy success per level against epoch, saved as PNG."""
+def _pyplot():
     import matplotlib
 
     matplotlib.use("Agg")  # files only; no display needed
     import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _save(fig, path: Path) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    fig.clf()
+    _pyplot().close(fig)
+    return path
+
+
+def plot_goal_space_growth(metrics: list[dict], path: Path) -> Path:
+    """Goal-space volume (log scale) and greedy success per level against epoch, saved as PNG."""
+    plt = _pyplot()
 
     if not metrics:
         raise ValueError("no epochs to plot: metrics is empty")
@@ -35,8 +53,74 @@ def plot_goal_space_growth(metrics: list[dict], path: Path) -> Path:
     success_ax.set_xlabel("epoch")
     success_ax.set_ylim(0, 1.05)
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
+
+
+def plot_goal_space_boxes(start: list[float], boxes: list[dict], trajectories: list, path: Path,
+                          title: str = "") -> Path:
+    """Each level's goal-space box around h(s0) over the arena, with trajectories of h(s).
+
+    ``boxes`` are ``Trainer.goal_spaces`` entries (shift and half_width relative to
+    h(s0)); ``trajectories`` are [T, d] arrays of h(s). 1-D goal spaces are drawn as
+    intervals on the x axis, with time running upward for the trajectories.
+    """
+    from matplotlib.patches import Rectangle
+
+    plt = _pyplot()
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    fig, ax = plt.subplots(figsize=(6, 6))
+    two_d = len(start) >= 2
+    for level, box in reversed(list(enumerate(boxes))):
+        colour = colours[level % len(colours)]
+        low = [s + c - w for s, c, w in zip(start, box["shift"], box["half_width"])]
+        width = [2 * w for w in box["half_width"]]
+        height = width[1] if two_d else 1.0
+        ax.add_patch(Rectangle((low[0], low[1] if two_d else -0.5), width[0], height, fill=False,
+                               edgecolor=colour, linewidth=2, label=f"level {level} goal space"))
+    for index, trajectory in enumerate(trajectories):
+        trajectory = list(map(list, trajectory))
+        xs = [p[0] for p in trajectory]
+        ys = [p[1] for p in trajectory] if two_d else [t / max(len(trajectory) - 1, 1) - 0.5 for t in range(len(trajectory))]
+        ax.plot(xs, ys, color="0.3", linewidth=1, alpha=0.8, label="trajectories" if index == 0 else None)
+    ax.plot([start[0]], [start[1] if two_d else 0.0], marker="o", color="black", label="h(s0)")
+    ax.set_xlabel("x")
+    ax.set_ylabel("y" if two_d else "time (trajectories)")
+    if two_d:
+        ax.set_aspect("equal", adjustable="datalim")
+    ax.autoscale_view()
+    ax.legend(loc="upper right", fontsize="small")
+    if title:
+        ax.set_title(title)
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def plot_run(run_dir: Path, chains: int = 8, skills_per_chain: int = 1) -> list[Path]:
+    """Every picture of a run directory, written to RUN_DIR/plots/; returns their paths.
+
+    Always the goal-space growth. With checkpoints, also the goal-space boxes at the
+    initial state before training (the run's own seed rebuilds epoch 0 exactly) and at the
+    newest checkpoint, each with ``chains`` greedy chains of ``skills_per_chain`` top-level
+    skills from the initial state.
+    """
+    import jax
+
+    from mjx_emp.render import record_skill_chain
+    from mjx_emp.run import load_run
+
+    run_dir = Path(run_dir)
+    paths = [plot_goal_space_growth(read_metrics(run_dir), run_dir / "plots" / "goal_space_growth.png")]
+    if not (run_dir / "checkpoints").exists():
+        return paths
+    trainer, epoch, state = load_run(run_dir)
+    steps = skills_per_chain * int(np.prod(trainer.cfg.n))
+    start = np.asarray(trainer.env.goal_of_obs(trainer.initial_obs)).tolist()
+    for name, snapshot, shown_epoch in (("goal_spaces_epoch0.png", trainer.init(), 0),
+                                         ("goal_spaces.png", state, epoch)):
+        trajectories = [
+            record_skill_chain(trainer, snapshot, jax.random.key(seed), steps).qpos[:, list(trainer.env.goal_qpos)]
+            for seed in range(chains)
+        ]
+        paths.append(plot_goal_space_boxes(start, trainer.goal_spaces(snapshot), trajectories,
+                                           run_dir / "plots" / name, title=f"{trainer.cfg.env}, epoch {shown_epoch}"))
+    return paths

@@ -10,7 +10,7 @@ import pytest
 
 from mjx_emp.evaluate import mean_and_stderr, min_distance_to_goal
 from mjx_emp import cli
-from mjx_emp.plots import plot_goal_space_growth
+from mjx_emp.plots import plot_goal_space_boxes, plot_goal_space_growth
 
 
 def test_min_distance_is_the_closest_approach_of_each_episode():
@@ -57,6 +57,25 @@ def test_goal_space_growth_plot_is_a_png_image(tmp_path):
     with Image.open(path) as image:
         assert image.format == "PNG" and image.size == (700, 600)
         assert np.unique(np.asarray(image.convert("L"))).size > 2  # curves were drawn, not a blank canvas
+
+
+def drawn_png(path) -> np.ndarray:
+    from PIL import Image
+
+    with Image.open(path) as image:
+        assert image.format == "PNG"
+        return np.asarray(image.convert("RGB"))
+
+
+@pytest.mark.parametrize("dims", [1, 2])
+def test_goal_space_boxes_plot_draws_every_level(tmp_path, dims):
+    boxes = [{"shift": [0.1] * dims, "half_width": [1.0] * dims}, {"shift": [0.0] * dims, "half_width": [3.0] * dims}]
+    trajectory = np.cumsum(np.full((20, dims), 0.1), axis=0)
+    pixels = drawn_png(plot_goal_space_boxes([0.0] * dims, boxes, [trajectory], tmp_path / "boxes.png"))
+    assert pixels.shape == (600, 600, 3)
+    blue, orange = np.array([31, 119, 180]), np.array([255, 127, 14])  # matplotlib's first two colours
+    for colour in (blue, orange):  # both level boxes appear
+        assert (np.abs(pixels.astype(int) - colour).sum(axis=-1) < 30).sum() > 100
 
 
 def test_plot_command_draws_a_run_and_names_the_field_when_there_is_none(tmp_path, capsys):

@@ -1,4 +1,4 @@
-"""Skill videos: `mjx-emp render` turns a checkpoint into frames of the requested size."""
+"""Pictures of a trained run: `mjx-emp render` (skill video) and `mjx-emp plot` (figures)."""
 
 from __future__ import annotations
 
@@ -15,10 +15,16 @@ def test_markers_sit_on_the_floor_plane_for_2d_goals_and_on_the_x_axis_for_1d_go
     assert marker_position(np.array([7.0]), height=0.3).tolist() == [7.0, 0.0, 0.3]
 
 
-def test_render_writes_frames_of_the_requested_size(tmp_path):
-    run_dir = tmp_path / "run"
+@pytest.fixture(scope="module")
+def trained_run(tmp_path_factory):
+    run_dir = tmp_path_factory.mktemp("render") / "run"
     trained = run_cli("train", *SMALL, "--epochs", "1", "--run-dir", str(run_dir))
     assert trained.returncode == 0, trained.stderr
+    return run_dir
+
+
+def test_render_writes_frames_of_the_requested_size(trained_run, tmp_path):
+    run_dir = trained_run
     out = tmp_path / "skills.gif"
     result = run_cli("render", str(run_dir), "--steps", "6", "--width", "64", "--height", "48", "--out", str(out))
     if result.returncode == 3:  # the CLI's exit code for "no offscreen OpenGL on this machine"
@@ -31,3 +37,13 @@ def test_render_writes_frames_of_the_requested_size(tmp_path):
             gif.seek(index)
             frames.append(np.asarray(gif.convert("RGB")))
     assert all(frame.std() > 0 for frame in frames)  # a scene was drawn, not a blank image
+
+
+def test_plot_draws_growth_and_the_goal_space_boxes_before_and_after_training(trained_run):
+    result = run_cli("plot", str(trained_run))
+    assert result.returncode == 0, result.stderr
+    names = ["goal_space_growth.png", "goal_spaces_epoch0.png", "goal_spaces.png"]
+    assert [line.rsplit("/", 1)[-1] for line in result.stdout.split()] == names
+    for name in names:
+        with Image.open(trained_run / "plots" / name) as image:
+            assert image.format == "PNG" and np.asarray(image.convert("L")).std() > 0
