@@ -14,6 +14,7 @@ import tyro
 
 from mjx_emp import run
 from mjx_emp.config import ConfigError, check_levels
+from mjx_emp.experiments.evaluate import EvalExperiment
 from mjx_emp.experiments.plot import PlotExperiment
 from mjx_emp.experiments.presets import PRESETS
 from mjx_emp.experiments.render import RenderExperiment
@@ -126,8 +127,35 @@ def render(exp: RenderExperiment) -> None:
     print(f"{out}: {len(frames)} frames of {exp.width}x{exp.height} (epoch {epoch})")
 
 
+def evaluate(exp: EvalExperiment) -> dict:
+    """Evaluate each run's newest checkpoint, aggregate over runs, print a table, write JSON."""
+    if exp.episodes < 1:
+        raise ConfigError(f"episodes: must be >= 1; got {exp.episodes}")
+    import jax
+
+    from mjx_emp.evaluate import aggregate_runs, phase1_figures
+
+    runs = []
+    for run_dir in exp.run_dirs:
+        trainer, _, state = run.load_run(Path(run_dir))
+        runs.append({"run_dir": run_dir, **phase1_figures(trainer, state, jax.random.key(exp.seed), exp.episodes)})
+    report = {"runs": runs, "levels": aggregate_runs(runs),
+              "note": "phase-2 minimum distance to goal: not available until phase 2 is trained"}
+    out = Path(exp.out or Path(exp.run_dirs[0]) / "eval.json")
+    out.write_text(json.dumps(report, indent=1))
+    print(f"{len(runs)} run(s); mean ± standard error over runs")
+    print("| level | goal-space volume | greedy success | final distance |")
+    print("|---|---|---|---|")
+    for row in report["levels"]:
+        cells = [f"{row[name]['mean']:.3g} ± {row[name]['stderr']:.2g}" for name in ("volume", "success", "final_distance")]
+        print(f"| {row['level']} | " + " | ".join(cells) + " |")
+    print(f"wrote {out}")
+    return report
+
+
 COMMANDS = {
     "rollout": (RolloutExperiment, rollout),
+    "eval": (EvalExperiment, evaluate),
     "plot": (PlotExperiment, plot),
     "render": (RenderExperiment, render),
 }
@@ -138,8 +166,8 @@ def main(argv: list[str] | None = None) -> None:
 
     ``mjx-emp train PRESET [--field value ...]`` trains a preset (``mjx-emp presets`` lists
     them), ``mjx-emp train --resume RUN_DIR`` continues a run, ``mjx-emp rollout`` runs a
-    random-init agent, ``mjx-emp plot RUN_DIR`` draws a run's goal-space growth and
-    ``mjx-emp render RUN_DIR`` writes a GIF of its skills.
+    random-init agent, ``mjx-emp eval RUN_DIR...`` reports phase-1 figures, ``mjx-emp plot
+    RUN_DIR`` draws a run's pictures and ``mjx-emp render RUN_DIR`` writes a GIF of its skills.
     """
     argv = sys.argv[1:] if argv is None else list(argv)
     if argv[:1] == ["render"]:

@@ -36,3 +36,34 @@ def mean_and_stderr(values: Sequence[float]) -> dict[str, float]:
         raise ValueError("mean_and_stderr needs at least one value")
     stderr = float(x.std(ddof=1) / math.sqrt(x.size)) if x.size > 1 else 0.0
     return {"mean": float(x.mean()), "stderr": stderr, "count": int(x.size)}
+
+
+def phase1_figures(trainer, state, key, episodes: int) -> dict:
+    """Per level: the goal-space box at the initial state and greedy goal-conditioned results.
+
+    Goals come from each level's own (noise-free) goal space, episodes start from its
+    start-state buffer; at least ``episodes`` episodes per level (whole rounds of
+    ``num_envs``).
+    """
+    import jax
+
+    rounds = max(1, math.ceil(episodes / trainer.cfg.num_envs))
+    levels = []
+    for level, box in enumerate(trainer.goal_spaces(state)):
+        result = trainer.evaluate(state, level, jax.random.fold_in(key, level), rounds)
+        levels.append({"level": level, **box, **result, "episodes": rounds * trainer.cfg.num_envs})
+    return {"epoch": int(state.epoch), "env_steps": float(state.env_steps), "levels": levels}
+
+
+def aggregate_runs(reports: Sequence[dict]) -> list[dict]:
+    """Mean and standard error over runs (seeds) of each level's volume, success and final distance."""
+    if not reports:
+        raise ValueError("aggregate_runs needs at least one report")
+    k = len(reports[0]["levels"])
+    if any(len(r["levels"]) != k for r in reports):
+        raise ValueError("runs to aggregate must have the same number of levels")
+    return [
+        {"level": level, **{name: mean_and_stderr([r["levels"][level][name] for r in reports])
+                            for name in ("volume", "success", "final_distance")}}
+        for level in range(k)
+    ]

@@ -35,6 +35,8 @@ def cli(*args: str) -> subprocess.CompletedProcess:
         (["train", "--resume", "/nonexistent/mjx-emp-run", "--seed", "3"], "--seed"),  # not resumable
         (["render", "/nonexistent/mjx-emp-run", "--steps", "0"], "steps"),
         (["render", "/nonexistent/mjx-emp-run"], "run_dir"),  # not a run directory
+        (["eval", "/nonexistent/mjx-emp-run", "--episodes", "0"], "episodes"),
+        (["eval", "/nonexistent/mjx-emp-run"], "run_dir"),
     ],
 )
 def test_bad_config_exits_2_naming_the_field(args, field):

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from mjx_emp.evaluate import mean_and_stderr, min_distance_to_goal
+from mjx_emp.evaluate import aggregate_runs, mean_and_stderr, min_distance_to_goal
 from mjx_emp import cli
 from mjx_emp.plots import plot_goal_space_boxes, plot_goal_space_growth
 
@@ -57,6 +57,18 @@ def test_goal_space_growth_plot_is_a_png_image(tmp_path):
     with Image.open(path) as image:
         assert image.format == "PNG" and image.size == (700, 600)
         assert np.unique(np.asarray(image.convert("L"))).size > 2  # curves were drawn, not a blank canvas
+
+
+def test_runs_aggregate_per_level_and_must_have_the_same_depth():
+    def run(volumes, success):
+        return {"levels": [{"volume": v, "success": success, "final_distance": 0.1} for v in volumes]}
+
+    rows = aggregate_runs([run([1.0, 10.0], 0.9), run([3.0, 30.0], 0.7)])
+    assert [row["volume"]["mean"] for row in rows] == [2.0, 20.0]
+    assert rows[1]["volume"]["stderr"] == pytest.approx(10.0)  # std 14.14 / sqrt(2)
+    assert rows[0]["success"]["mean"] == pytest.approx(0.8)
+    with pytest.raises(ValueError, match="same number of levels"):
+        aggregate_runs([run([1.0], 0.9), run([1.0, 2.0], 0.9)])
 
 
 def drawn_png(path) -> np.ndarray:

@@ -1,6 +1,8 @@
-"""Pictures of a trained run: `mjx-emp render` (skill video) and `mjx-emp plot` (figures)."""
+"""Outputs of a trained run: `mjx-emp render` (skill video), `plot` (figures), `eval` (report)."""
 
 from __future__ import annotations
+
+import json
 
 import numpy as np
 import pytest
@@ -47,3 +49,16 @@ def test_plot_draws_growth_and_the_goal_space_boxes_before_and_after_training(tr
     for name in names:
         with Image.open(trained_run / "plots" / name) as image:
             assert image.format == "PNG" and np.asarray(image.convert("L")).std() > 0
+
+
+def test_eval_reports_every_level_and_aggregates_runs_as_seeds(trained_run, tmp_path):
+    out = tmp_path / "eval.json"
+    result = run_cli("eval", str(trained_run), str(trained_run), "--episodes", "16", "--out", str(out))
+    assert result.returncode == 0, result.stderr
+    report = json.loads(out.read_text())
+    assert len(report["runs"]) == 2 and report["runs"][0]["epoch"] == 1
+    (level,) = report["levels"]  # SMALL is a one-level agent
+    assert level["volume"]["count"] == 2 and level["volume"]["stderr"] == 0.0  # same run twice
+    assert 0.0 <= level["success"]["mean"] <= 1.0 and level["final_distance"]["mean"] >= 0.0
+    assert report["runs"][0]["levels"][0]["episodes"] == 16
+    assert "| 0 |" in result.stdout
