@@ -161,11 +161,21 @@ def _holds_a_run(run_dir: Path) -> bool:
     return (run_dir / METRICS_FILE).exists() or (run_dir / CHECKPOINT_SUBDIR).exists()
 
 
+def _check_keep(keep_checkpoints: int) -> None:
+    if keep_checkpoints < 1:
+        raise ConfigError(f"keep_checkpoints: must be >= 1; got {keep_checkpoints}")
+
+
+def _train_to_the_end(trainer, state, checkpoints, run_dir: Path):
+    """Report progress while training to ``cfg.epochs``; then close ``checkpoints`` (waits for writes)."""
+    with checkpoints, progress_reporter(trainer.cfg.epochs, int(state.epoch)) as report:
+        return train_epochs(trainer, state, checkpoints, run_dir, report)
+
+
 def start(exp: TrainExperiment):
     """Train a new run; returns the final TrainState."""
     check_train_config(exp.config)
-    if exp.keep_checkpoints < 1:
-        raise ConfigError(f"keep_checkpoints: must be >= 1; got {exp.keep_checkpoints}")
+    _check_keep(exp.keep_checkpoints)
     run_dir = prepare_run_dir(exp.run_dir or default_run_dir(exp.config))
     if _holds_a_run(run_dir):
         raise ConfigError(
@@ -180,22 +190,25 @@ def start(exp: TrainExperiment):
     trainer = Trainer(exp.config)
     state = trainer.init()
     checkpoints = Checkpoints(run_dir, exp.keep_checkpoints)
-    try:
-        checkpoints.save(0, state, exp.config)
-        with progress_reporter(exp.config.epochs, 0) as report:
-            return train_epochs(trainer, state, checkpoints, run_dir, report)
-    finally:
-        checkpoints.close()
+    checkpoints.save(0, state, exp.config)
+    return _train_to_the_end(trainer, state, checkpoints, run_dir)
 
 
-def load_run(run_dir: Path, fallback: bool = False):
-    """A run's trainer and its newest good checkpoint: ``(trainer, epoch, state)``."""
+def load_run(run_dir: Path, fallback: bool = False, epochs: int | None = None, field: str = "run_dir"):
+    """A run's trainer and its newest good checkpoint: ``(trainer, epoch, state)``.
+
+    ``epochs`` replaces the run's epoch count (the one setting a resume may change);
+    ``field`` is the CLI field that errors about ``run_dir`` name.
+    """
     import jax
 
     from mjx_emp.checkpoint import Checkpoints
     from mjx_emp.train import Trainer
 
-    cfg = read_run_config(Path(run_dir), field="run_dir")
+    cfg = read_run_config(Path(run_dir), field)
+    if epochs is not None:
+        cfg = dataclasses.replace(cfg, epochs=epochs)
+    check_train_config(cfg)
     trainer = Trainer(cfg)
     with Checkpoints(Path(run_dir)) as checkpoints:
         epoch, state = checkpoints.restore_latest(jax.eval_shape(trainer.init), cfg, fallback)
@@ -204,29 +217,15 @@ def load_run(run_dir: Path, fallback: bool = False):
 
 def resume(exp: ResumeExperiment):
     """Continue a run from its newest good checkpoint; returns the final TrainState."""
+    _check_keep(exp.keep_checkpoints)
     run_dir = Path(exp.resume)
-    cfg = read_run_config(run_dir)
-    if exp.epochs is not None:
-        cfg = dataclasses.replace(cfg, epochs=exp.epochs)
-    check_train_config(cfg)
-    if exp.keep_checkpoints < 1:
-        raise ConfigError(f"keep_checkpoints: must be >= 1; got {exp.keep_checkpoints}")
-    import jax
-
+    trainer, epoch, state = load_run(run_dir, exp.fallback, exp.epochs, field="resume")
     from mjx_emp.checkpoint import Checkpoints
-    from mjx_emp.train import Trainer
 
-    trainer = Trainer(cfg)
-    checkpoints = Checkpoints(run_dir, exp.keep_checkpoints)
-    try:
-        epoch, state = checkpoints.restore_latest(jax.eval_shape(trainer.init), cfg, exp.fallback)
-        print(f"resuming {run_dir} from epoch {epoch}", flush=True)
-        keep_metrics_through(run_dir / METRICS_FILE, epoch)
-        write_atomically(run_dir / CONFIG_FILE, json.dumps(dataclasses.asdict(cfg), indent=1))
-        with progress_reporter(cfg.epochs, epoch) as report:
-            return train_epochs(trainer, state, checkpoints, run_dir, report)
-    finally:
-        checkpoints.close()
+    print(f"resuming {run_dir} from epoch {epoch}", flush=True)
+    keep_metrics_through(run_dir / METRICS_FILE, epoch)
+    write_atomically(run_dir / CONFIG_FILE, json.dumps(dataclasses.asdict(trainer.cfg), indent=1))
+    return _train_to_the_end(trainer, state, Checkpoints(run_dir, exp.keep_checkpoints), run_dir)
 
 
 def main_guarded(command: Callable, exp) -> None:
