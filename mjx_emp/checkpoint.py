@@ -144,6 +144,7 @@ class Checkpoints:
 
     @property
     def directory(self) -> Path:
+        """RUN_DIR/checkpoints, where orbax keeps one directory per epoch."""
         return Path(self.run_dir) / CHECKPOINT_SUBDIR
 
     def step_dir(self, epoch: int) -> Path:
