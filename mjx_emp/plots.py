@@ -11,7 +11,9 @@ import numpy as np
 
 def read_metrics(run_dir: Path) -> list[dict]:
     """The per-epoch metric lines of a run directory, in order."""
-    path = Path(run_dir) / "metrics.jsonl"
+    from mjx_emp.run import METRICS_FILE
+
+    path = Path(run_dir) / METRICS_FILE
     return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
 
 
@@ -105,12 +107,13 @@ def plot_run(run_dir: Path, chains: int = 8, skills_per_chain: int = 1) -> list[
     """
     import jax
 
+    from mjx_emp.checkpoint import CHECKPOINT_SUBDIR
     from mjx_emp.render import record_skill_chain
     from mjx_emp.run import load_run
 
     run_dir = Path(run_dir)
     paths = [plot_goal_space_growth(read_metrics(run_dir), run_dir / "plots" / "goal_space_growth.png")]
-    if not (run_dir / "checkpoints").exists():
+    if not (run_dir / CHECKPOINT_SUBDIR).exists():
         return paths
     trainer, epoch, state = load_run(run_dir)
     steps = skills_per_chain * int(np.prod(trainer.cfg.n))
