@@ -100,8 +100,8 @@ def measure(name: str, cfg: TrainConfig, repeats: int) -> dict:
 
     # The epoch donates its input state, so rollout inputs are re-read after every epoch.
     root, mode = jnp.int32(cfg.k - 1), jnp.int32(MODE_GC)
-    h, start, steps = trainer.hierarchy, trainer._start, cfg.chunk_steps
-    params, start_params = trainer._rollout_inputs(state, root, mode)
+    h, start, steps = trainer.hierarchy, trainer.start, cfg.chunk_steps
+    params, start_params = trainer.rollout_inputs(state, root, mode)
     rollout_state = jit_init_rollout(h, params, start, start_params, jax.random.key(1), cfg.num_envs, cfg.k - 1)
     rollout_state = jax.block_until_ready(jit_rollout(h, params, start, start_params, rollout_state, steps))[0]
 
@@ -109,7 +109,7 @@ def measure(name: str, cfg: TrainConfig, repeats: int) -> dict:
     for _ in range(repeats):
         dt, (state, stats) = _seconds(lambda: trainer.train_epoch(state))
         epoch_rate = float(jnp.sum(stats.env_steps)) / dt
-        params, start_params = trainer._rollout_inputs(state, root, mode)
+        params, start_params = trainer.rollout_inputs(state, root, mode)
         dt_roll, out = _seconds(lambda: jit_rollout(h, params, start, start_params, rollout_state, steps))
         rollout_state = out[0]
         rollout_rate = steps * cfg.num_envs / dt_roll

@@ -1,4 +1,5 @@
-"""Training presets: one per row of the paper's Table 1, plus small CPU presets.
+"""Training presets: phase 1 per row of the paper's Table 1, phase 2 per row of its Table 2,
+plus small CPU presets.
 
 Values the paper gives (k, n, sigma_gc, sigma_gs, eps, epochs, and the 10 x S=50 /
 1 x S=10 epoch structure) are copied from its Table 1 and appendix. It leaves the rest
@@ -30,7 +31,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from mjx_emp.config import TrainConfig
+from mjx_emp.config import Phase2Config, TrainConfig
 
 _PAPER = dict(
     num_envs=4096, batch_size=1024, hidden=(256, 256), replay_capacity=500_000,
@@ -92,3 +93,58 @@ PRESETS: dict[str, tuple[str, TrainConfig]] = {
                              _paper("half_cheetah_cage", (20, 10), **_CHEETAH_K2, epochs=980,
                                     max_half_width=(20.0, 100.0))),
 }
+
+
+# ---- phase 2 -------------------------------------------------------------------------
+# Table 2 gives n (attempts), eps and the region's length per dimension. The rest is ours:
+# the reward's sigma equals eps (phase 1's goal-conditioned reward, as wide as the goal
+# threshold); Half Cheetah's regions lie ahead of the start by a tenth of their length
+# (the paper shifts them "slightly" forward without a number); the GPU-scale learning
+# settings below; 100 epochs.
+_PHASE2_PAPER = dict(
+    num_envs=1024, batch_size=1024, hidden=(256, 256), replay_capacity=500_000, epochs=100,
+)
+
+
+def _phase2(n: int, eps: float, length: float, dims: int, ahead: float = 0.0) -> Phase2Config:
+    return Phase2Config(n=n, eps=eps, sigma=eps, region=(length,) * dims,
+                        region_offset=(ahead * length,) + (0.0,) * (dims - 1), **_PHASE2_PAPER)
+
+
+_POINT_MASS_PHASE2 = Phase2Config(n=3, eps=0.6, sigma=0.6, region=(2.4, 2.4), region_offset=(0.0, 0.0), epochs=30)
+
+PHASE2_PRESETS: dict[str, tuple[str, str, Phase2Config]] = {
+    # name: (description, the phase-1 preset it builds on, config)
+    "point-mass-k1": ("CPU default: goals in a 2.4 x 2.4 square, inside the k=1 agent's learned "
+                      "goal space; 3 attempts", "point-mass-k1", _POINT_MASS_PHASE2),
+    "point-mass-wide-k2": ("CPU: goals in an 8 x 8 square, beyond the k=1 goal space; 3 attempts",
+                           "point-mass-k2", dataclasses.replace(_POINT_MASS_PHASE2, region=(8.0, 8.0))),
+    "point-mass-wide-k1": ("CPU: point-mass-wide-k2's task for the k=1 agent", "point-mass-k1",
+                           dataclasses.replace(_POINT_MASS_PHASE2, region=(8.0, 8.0))),
+    "ant-field-small-k1": ("Table 2: Ant Field Small, k=1", "ant-field-small-k1", _phase2(10, 1.8, 40, 2)),
+    "ant-field-big-k1": ("Table 2: Ant Field Big, k=1", "ant-field-big-k1", _phase2(25, 2.4, 200, 2)),
+    "ant-field-big-k2": ("Table 2: Ant Field Big, k=2", "ant-field-big-k2", _phase2(10, 2.4, 200, 2)),
+    "ant-field-xl-k2": ("Table 2: Ant Field XL, k=2", "ant-field-xl-k2", _phase2(10, 9.6, 800, 2)),
+    "ant-field-xl-k3": ("Table 2: Ant Field XL, k=3", "ant-field-xl-k3", _phase2(10, 9.6, 800, 2)),
+    "half-cheetah-small-k1": ("Table 2: Half Cheetah Small, k=1", "half-cheetah-small-k1",
+                              _phase2(10, 3.0, 95, 1, ahead=0.1)),
+    "half-cheetah-big-k1": ("Table 2: Half Cheetah Big, k=1", "half-cheetah-big-k1",
+                            _phase2(10, 10.0, 450, 1, ahead=0.1)),
+    "half-cheetah-big-k2": ("Table 2: Half Cheetah Big, k=2", "half-cheetah-big-k2",
+                            _phase2(10, 10.0, 450, 1, ahead=0.1)),
+    "ant-cage-k1": ("Table 2: Ant Cage, k=1", "ant-cage-k1", _phase2(25, 2.4, 100, 2)),
+    "ant-cage-k2": ("Table 2: Ant Cage, k=2", "ant-cage-k2", _phase2(10, 2.4, 100, 2)),
+    "half-cheetah-cage-k1": ("Table 2: Half Cheetah Cage, k=1", "half-cheetah-cage-k1",
+                             _phase2(10, 10.0, 150, 1, ahead=0.1)),
+    "half-cheetah-cage-k2": ("Table 2: Half Cheetah Cage, k=2", "half-cheetah-cage-k2",
+                             _phase2(10, 10.0, 150, 1, ahead=0.1)),
+}
+
+
+def phase2_preset_for(skills: TrainConfig) -> str | None:
+    """The first phase-2 preset built on a phase-1 preset with ``skills``' domain and n, if any."""
+    for name, (_, phase1, _) in PHASE2_PRESETS.items():
+        base = PRESETS[phase1][1]
+        if (base.env, tuple(base.n)) == (skills.env, tuple(skills.n)):
+            return name
+    return None

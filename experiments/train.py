@@ -1,4 +1,5 @@
-"""Experiments: phase-1 training of a preset (any field overridable), and resuming a run."""
+"""Experiments: phase-1 training of a preset (any field overridable), and resuming a run
+(of phase 1, or of phase 2 with `mjx-emp phase2 --resume`)."""
 
 from __future__ import annotations
 
@@ -27,10 +28,10 @@ class TrainExperiment:
 
 @dataclasses.dataclass(frozen=True)
 class ResumeExperiment:
-    """Continue a phase-1 run from its latest good checkpoint, bit for bit as if never stopped."""
+    """Continue a run from its latest good checkpoint, bit for bit as if never stopped."""
 
     resume: str
-    """Run directory written by `mjx-emp train`."""
+    """Run directory written by `mjx-emp train` (for `mjx-emp phase2 --resume`: the phase-2 directory)."""
     epochs: int | None = None
     """New total number of epochs (default: the run's own). The only setting a resume may change."""
     fallback: bool = False

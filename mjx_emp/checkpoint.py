@@ -1,13 +1,14 @@
-"""Orbax checkpoints of the whole phase-1 train state, one per curriculum epoch.
+"""Orbax checkpoints of a whole train state (phase 1 or phase 2), one per epoch.
 
-A checkpoint holds every array of ``TrainState`` (parameters, target parameters, optimizer
-states, replay, goal-space and start-state buffers, the start chain's simulator state, RNG keys
-as ``jax.random.key_data``, epoch and step counters), packed into one flat array per dtype
-(item ``state``), the path, shape and dtype of each array (item ``layout``, JSON) and the
-``TrainConfig`` (item ``config``, JSON). ``Checkpoints.restore`` gives the pytree back. Orbax
-writes each step into a temporary directory and renames it when complete, so a process killed
-mid-write leaves the previous checkpoint as the latest one; the half-written directory is
-ignored and cleaned up when the run directory is next opened.
+A checkpoint holds every array of the state (for phase 1's ``TrainState``: parameters,
+target parameters, optimizer states, replay, goal-space and start-state buffers, the start
+chain's simulator state, RNG keys as ``jax.random.key_data``, epoch and step counters),
+packed into one flat array per dtype (item ``state``), the path, shape and dtype of each
+array (item ``layout``, JSON) and the run's config (item ``config``, JSON: a
+``TrainConfig``, or a ``Phase2Config`` for phase 2). ``Checkpoints.restore`` gives the
+pytree back. Orbax writes each step into a temporary directory and renames it when
+complete, so a process killed mid-write leaves the previous checkpoint as the latest one;
+the half-written directory is ignored and cleaned up when the run directory is next opened.
 """
 
 from __future__ import annotations
@@ -113,7 +114,7 @@ def layout_mismatch(saved: list[dict], expected: list[dict]) -> str | None:
     return None
 
 
-def config_mismatches(saved: dict, expected: TrainConfig) -> list[str]:
+def config_mismatches(saved: dict, expected: Any) -> list[str]:
     """Fields (other than the resumable ones) whose saved value differs from ``expected``."""
     want = json.loads(json.dumps(dataclasses.asdict(expected)))
     fields = sorted(set(saved) | set(want))
@@ -130,6 +131,8 @@ class Checkpoints:
 
     run_dir: Path
     keep: int = 3
+    config_type: type = TrainConfig
+    """The config dataclass stored with each checkpoint."""
     manager: ocp.CheckpointManager = dataclasses.field(init=False, repr=False)
 
     def __post_init__(self):
@@ -155,7 +158,7 @@ class Checkpoints:
         """Epochs with a complete checkpoint, oldest first."""
         return sorted(self.manager.all_steps())
 
-    def save(self, epoch: int, state: Any, config: TrainConfig) -> float:
+    def save(self, epoch: int, state: Any, config: Any) -> float:
         """Start writing ``state`` as ``epoch``'s checkpoint; returns the seconds this call blocked.
 
         The write finishes in the background; ``wait`` blocks until it is on disk.
@@ -182,16 +185,16 @@ class Checkpoints:
     def __exit__(self, *exc_info) -> None:
         self.close()
 
-    def read_config(self, epoch: int) -> TrainConfig:
-        """The TrainConfig stored with ``epoch``'s checkpoint."""
+    def read_config(self, epoch: int) -> Any:
+        """The config stored with ``epoch``'s checkpoint."""
         path = self.step_dir(epoch) / "config"
         try:
             saved = self.manager.restore(epoch, args=ocp.args.Composite(config=ocp.args.JsonRestore())).config
-            return config_from_dict(saved)
+            return config_from_dict(saved, self.config_type)
         except Exception as err:  # orbax and JSON raise many types; all mean "unreadable"
             raise CheckpointError(f"{path}: unreadable config ({type(err).__name__}: {err})") from err
 
-    def restore(self, epoch: int, template: Any, expected: TrainConfig) -> Any:
+    def restore(self, epoch: int, template: Any, expected: Any) -> Any:
         """Epoch ``epoch``'s state, checked against ``expected`` (the run's config).
 
         ``template`` is a state (or its ``jax.eval_shape``) of the expected config.
@@ -218,7 +221,7 @@ class Checkpoints:
             raise CheckpointError(f"{step_dir / 'state'}: unreadable ({type(err).__name__}: {reason})") from err
         return unpack(restored.state, template)
 
-    def restore_latest(self, template: Any, expected: TrainConfig, fallback: bool = False) -> tuple[int, Any]:
+    def restore_latest(self, template: Any, expected: Any, fallback: bool = False) -> tuple[int, Any]:
         """The newest checkpoint that restores, as ``(epoch, state)``.
 
         Without ``fallback`` a bad newest checkpoint raises CheckpointError; with it, older

@@ -15,8 +15,9 @@ import tyro
 from mjx_emp import run
 from mjx_emp.config import ConfigError, check_levels
 from mjx_emp.experiments.evaluate import EvalExperiment
+from mjx_emp.experiments.phase2 import Phase2Experiment
 from mjx_emp.experiments.plot import PlotExperiment
-from mjx_emp.experiments.presets import PRESETS
+from mjx_emp.experiments.presets import PHASE2_PRESETS, PRESETS, phase2_preset_for
 from mjx_emp.experiments.render import RenderExperiment
 from mjx_emp.experiments.rollout import RolloutExperiment
 from mjx_emp.experiments.train import ResumeExperiment, TrainExperiment
@@ -128,19 +129,35 @@ def render(exp: RenderExperiment) -> None:
 
 
 def evaluate(exp: EvalExperiment) -> dict:
-    """Evaluate each run's newest checkpoint, aggregate over runs, print a table, write JSON."""
+    """Evaluate each run's newest checkpoints, aggregate over runs, print tables, write JSON.
+
+    Phase-1 figures always; the paper's phase-2 figure (mean minimum distance to goal) for
+    runs that have a phase-2 directory (RUN_DIR/phase2).
+    """
     if exp.episodes < 1:
         raise ConfigError(f"episodes: must be >= 1; got {exp.episodes}")
     import jax
 
-    from mjx_emp.evaluate import aggregate_runs, phase1_figures
+    from mjx_emp.evaluate import aggregate_phase2, aggregate_runs, phase1_figures
 
     runs = []
     for run_dir in exp.run_dirs:
         trainer, _, state = run.load_run(Path(run_dir))
-        runs.append({"run_dir": run_dir, **phase1_figures(trainer, state, jax.random.key(exp.seed), exp.episodes)})
-    report = {"runs": runs, "levels": aggregate_runs(runs),
-              "note": "phase-2 minimum distance to goal: not available until phase 2 is trained"}
+        report = {"run_dir": run_dir, **phase1_figures(trainer, state, jax.random.key(exp.seed), exp.episodes)}
+        phase2_dir = Path(run_dir) / run.PHASE2_SUBDIR
+        if (phase2_dir / run.CONFIG_FILE).exists():
+            phase2, epoch, phase2_state = run.load_phase2(phase2_dir)
+            cfg = phase2.cfg
+            report["phase2"] = {
+                "epoch": epoch, "n": cfg.n, "eps": cfg.eps, "region": list(cfg.region),
+                "region_offset": list(cfg.region_offset),
+                **phase2.evaluate(phase2_state, jax.random.key(exp.seed), exp.episodes),
+            }
+        runs.append(report)
+    report = {"runs": runs, "levels": aggregate_runs(runs)}
+    with_phase2 = [r["phase2"] for r in runs if "phase2" in r]
+    if with_phase2:
+        report["phase2"] = aggregate_phase2(with_phase2)
     out = Path(exp.out or Path(exp.run_dirs[0]) / "eval.json")
     out.write_text(json.dumps(report, indent=1))
     print(f"{len(runs)} run(s); mean ± standard error over runs")
@@ -149,8 +166,49 @@ def evaluate(exp: EvalExperiment) -> dict:
     for row in report["levels"]:
         cells = [f"{row[name]['mean']:.3g} ± {row[name]['stderr']:.2g}" for name in ("volume", "success", "final_distance")]
         print(f"| {row['level']} | " + " | ".join(cells) + " |")
+    if with_phase2:
+        p2 = report["phase2"]
+        first = with_phase2[0]
+        print(f"phase 2 ({len(with_phase2)} run(s), {first['episodes']} episodes each, region {first['region']}, "
+              f"eps {first['eps']}): mean min distance to goal {p2['min_distance']['mean']:.3g} ± "
+              f"{p2['min_distance']['stderr']:.2g}, success {p2['success']['mean']:.3g} ± {p2['success']['stderr']:.2g}")
+    else:
+        print("phase 2: no run has a phase-2 directory (train one with `mjx-emp phase2 RUN_DIR`)")
     print(f"wrote {out}")
     return report
+
+
+def with_phase2_preset(args: list[str]) -> list[str]:
+    """``phase2`` arguments with a preset first: given ``RUN_DIR ...``, the run's own preset.
+
+    The preset is the Table-2 row whose phase-1 preset has the run's domain and n.
+    """
+    if not args or args[0] in PHASE2_PRESETS or args[0].startswith("-"):
+        return args
+    skills = run.read_run_config(Path(args[0]), "run_dir")
+    preset = phase2_preset_for(skills)
+    if preset is None:
+        raise ConfigError(
+            f"run_dir: no phase-2 preset is built on env={skills.env} n={tuple(skills.n)}; name one "
+            f"before the run directory (mjx-emp phase2 PRESET RUN_DIR); presets: {sorted(PHASE2_PRESETS)}"
+        )
+    return [preset, *args]
+
+
+def phase2(args: list[str]) -> None:
+    """``mjx-emp phase2 [PRESET] RUN_DIR [--field value ...]`` or ``mjx-emp phase2 --resume DIR``."""
+    if any(arg == "--resume" or arg.startswith("--resume=") for arg in args):
+        exp = tyro.cli(ResumeExperiment, args=args, prog="mjx-emp phase2 --resume")
+        main_guarded(run.resume_phase2, exp)
+        return
+    presets = {name: (description, Phase2Experiment(run_dir="", config=cfg))
+               for name, (description, _, cfg) in PHASE2_PRESETS.items()}
+
+    def parse_and_start(args: list[str]) -> None:
+        exp = tyro.extras.overridable_config_cli(presets, args=with_phase2_preset(args), prog="mjx-emp phase2")
+        run.start_phase2(exp)
+
+    main_guarded(parse_and_start, args)
 
 
 COMMANDS = {
@@ -166,8 +224,10 @@ def main(argv: list[str] | None = None) -> None:
 
     ``mjx-emp train PRESET [--field value ...]`` trains a preset (``mjx-emp presets`` lists
     them), ``mjx-emp train --resume RUN_DIR`` continues a run, ``mjx-emp rollout`` runs a
-    random-init agent, ``mjx-emp eval RUN_DIR...`` reports phase-1 figures, ``mjx-emp plot
-    RUN_DIR`` draws a run's pictures and ``mjx-emp render RUN_DIR`` writes a GIF of its skills.
+    random-init agent, ``mjx-emp phase2 RUN_DIR`` trains the downstream policy over a run's
+    skills (``--resume DIR`` continues it), ``mjx-emp eval RUN_DIR...`` reports phase-1 and
+    phase-2 figures, ``mjx-emp plot RUN_DIR`` draws a run's pictures and ``mjx-emp render
+    RUN_DIR`` writes a GIF of its skills.
     """
     argv = sys.argv[1:] if argv is None else list(argv)
     if argv[:1] == ["render"]:
@@ -175,8 +235,15 @@ def main(argv: list[str] | None = None) -> None:
 
         configure_headless_gl()  # before anything imports mujoco
     if argv[:1] == ["presets"]:
+        print("phase 1 (mjx-emp train PRESET):")
         for name, (description, _) in PRESETS.items():
-            print(f"{name:24s} {description}")
+            print(f"  {name:24s} {description}")
+        print("phase 2 (mjx-emp phase2 [PRESET] RUN_DIR):")
+        for name, (description, phase1, _) in PHASE2_PRESETS.items():
+            print(f"  {name:24s} {description} (on {phase1})")
+        return
+    if argv[:1] == ["phase2"]:
+        phase2(argv[1:])
         return
     if argv[:1] == ["train"]:
         if any(arg == "--resume" or arg.startswith("--resume=") for arg in argv[1:]):

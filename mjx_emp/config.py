@@ -151,10 +151,96 @@ def check_train_config(cfg: TrainConfig) -> None:
             raise ConfigError(f"{name}: must be >= 0; got {getattr(cfg, name)}")
 
 
-def config_from_dict(values: dict) -> TrainConfig:
-    """Rebuild a TrainConfig from its JSON form (lists back to tuples); unknown fields are an error."""
-    fields = {f.name: f for f in dataclasses.fields(TrainConfig)}
+def config_from_dict(values: dict, config_type: type = TrainConfig):
+    """Rebuild a config dataclass from its JSON form (lists back to tuples); unknown fields are an error."""
+    fields = {f.name: f for f in dataclasses.fields(config_type)}
     unknown = sorted(set(values) - set(fields))
     if unknown:
-        raise ConfigError(f"{unknown[0]}: not a TrainConfig field; allowed: {sorted(fields)}")
-    return TrainConfig(**{name: tuple(v) if isinstance(v, list) else v for name, v in values.items()})
+        raise ConfigError(f"{unknown[0]}: not a {config_type.__name__} field; allowed: {sorted(fields)}")
+    return config_type(**{name: tuple(v) if isinstance(v, list) else v for name, v in values.items()})
+
+
+@dataclasses.dataclass(frozen=True)
+class Phase2Config:
+    """Phase 2: a goal-conditioned policy over a trained agent's frozen top-level skills.
+
+    The added level k has no goal-space policy: its actions are subgoals for level k-1,
+    squashed into the top level's learned goal space at the current state. Each episode
+    starts at the task's initial state with a goal drawn uniformly from a fixed region
+    around h(s0) (the paper's Table 2); the policy has ``n`` attempts (top-level skills)
+    to come within ``eps`` of it.
+    """
+
+    n: int = 10
+    """Maximum number of attempts (top-level skills) per episode (Table 2's n)."""
+    eps: float = 0.6
+    """Goal threshold: an episode succeeds once h(s) is within eps of its goal."""
+    region: tuple[float, ...] = (3.0, 3.0)
+    """Length of the goal region along each goal dimension (Table 2's last column)."""
+    region_offset: tuple[float, ...] = (0.0, 0.0)
+    """Centre of the goal region relative to h(s0) (Half Cheetah's regions lie ahead)."""
+    sigma: float = 0.6
+    """Std of the reward's Gaussian, log N(goal; h(s_t+1), sigma): phase 1's goal-conditioned
+    reward, with its own width (the paper leaves phase 2's reward open)."""
+    epochs: int = 30
+    """Training epochs (each: ``iterations`` x (collect, update), then a greedy evaluation)."""
+    num_envs: int = 64
+    """Environments simulated in parallel."""
+    iterations: int = 10
+    """Collect-then-update iterations per epoch."""
+    grad_steps: int = 50
+    """Gradient steps per iteration."""
+    batch_size: int = 128
+    """Minibatch size of every gradient step."""
+    replay_capacity: int = 100_000
+    """Phase-2 transitions (one per attempt) kept."""
+    eval_rounds: int = 2
+    """Greedy evaluation rounds per epoch (num_envs episodes each), for the metrics."""
+    hidden: tuple[int, ...] = (128, 128)
+    """Hidden layer widths of the phase-2 actor and critic."""
+    actor_lr: float = 3e-4
+    """Adam learning rate of the actor."""
+    critic_lr: float = 3e-4
+    """Adam learning rate of the critic."""
+    gamma: float = 0.95
+    """Discount per attempt (0 once the goal is reached)."""
+    tau: float = 0.01
+    """Polyak rate of the target networks."""
+    action_noise: float = 0.2
+    """Exploration std of the subgoals, in units of the top goal space's half-width."""
+    phase1_epoch: int = -1
+    """Phase-1 checkpoint to build on; -1 means the newest one of the run."""
+    seed: int = 0
+    """Seed of phase 2's randomness."""
+
+
+_P2_POSITIVE = ("n", "epochs", "num_envs", "iterations", "grad_steps", "batch_size",
+                "replay_capacity", "eval_rounds")
+
+
+def check_phase2_config(cfg: Phase2Config, goal_size: int | None = None) -> None:
+    """Raise ConfigError naming the first invalid field of ``cfg`` (``goal_size``: the domain's)."""
+    for name in _P2_POSITIVE:
+        if getattr(cfg, name) < 1:
+            raise ConfigError(f"{name}: must be >= 1; got {getattr(cfg, name)}")
+    for name in ("eps", "sigma"):
+        if not getattr(cfg, name) > 0:
+            raise ConfigError(f"{name}: must be > 0; got {getattr(cfg, name)}")
+    if not cfg.region or any(not v > 0 for v in cfg.region):
+        raise ConfigError(f"region: give one length > 0 per goal dimension; got {cfg.region}")
+    if goal_size is not None:
+        for name in ("region", "region_offset"):
+            if len(getattr(cfg, name)) != goal_size:
+                raise ConfigError(f"{name}: the domain's goal space has {goal_size} dimension(s); "
+                                  f"got {getattr(cfg, name)}")
+    if not cfg.hidden or any(w < 1 for w in cfg.hidden):
+        raise ConfigError(f"hidden: give one or more widths >= 1; got {cfg.hidden}")
+    for name in ("actor_lr", "critic_lr", "tau"):
+        if not 0 < getattr(cfg, name) <= 1:
+            raise ConfigError(f"{name}: must be in (0, 1]; got {getattr(cfg, name)}")
+    if not 0 <= cfg.gamma < 1:
+        raise ConfigError(f"gamma: must be in [0, 1); got {cfg.gamma}")
+    if cfg.action_noise < 0:
+        raise ConfigError(f"action_noise: must be >= 0; got {cfg.action_noise}")
+    if cfg.phase1_epoch < -1:
+        raise ConfigError(f"phase1_epoch: an epoch >= 0, or -1 for the newest; got {cfg.phase1_epoch}")

@@ -192,8 +192,11 @@ class Env:
         return self.obs_size - (0 if self.cage is not None else self.goal_size)
 
     def goal_of_obs(self, obs: jax.Array) -> jax.Array:
-        """h(s) read back from an observation (the first entries of obs are qpos)."""
-        return obs[..., jnp.asarray(self.goal_qpos)]
+        """h(s) read back from an observation (the first entries of obs are qpos).
+
+        A NumPy observation gives a NumPy result (constants stay constants under jit).
+        """
+        return obs[..., np.asarray(self.goal_qpos)]
 
     def cage_open(self, state: EnvState) -> jax.Array:
         """True once the button has been pressed in this episode (always False without a cage)."""

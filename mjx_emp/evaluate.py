@@ -2,7 +2,8 @@
 
 The paper's phase-2 figure reports, per seed, the mean over episodes of the smallest
 distance between h(s_t) and the goal reached at any step of the episode, then the mean and
-spread over seeds. These functions compute exactly that from recorded trajectories.
+spread over seeds. Phase 2 computes the per-episode minimum on device as its rollout
+runs (:func:`running_min_distance`); the rest turns episode values into those figures.
 """
 
 from __future__ import annotations
@@ -10,23 +11,29 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
 
-def min_distance_to_goal(positions: np.ndarray, goals: np.ndarray, valid: np.ndarray | None = None) -> np.ndarray:
-    """Per episode, the smallest Euclidean distance between h(s_t) and the goal.
+def running_min_distance(distance: jax.Array, valid: jax.Array, ended: jax.Array,
+                         running: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Each environment's smallest distance to its goal so far in the current episode.
 
-    ``positions`` is [T, B, d] (h(s) at each step of B episodes), ``goals`` [B, d] and
-    ``valid`` [T, B] marks the steps that belong to each episode (all by default). An
-    episode with no valid step has distance inf.
+    ``distance``, ``valid`` and ``ended`` are [T, B] per primitive step: ||h(s_t+1) - goal||,
+    whether that step counts (not a physics reset) and whether the episode ended with it.
+    ``running`` [B] is carried in from earlier steps (inf where an episode is just starting).
+    Returns (running after the last step, per-step minimum so far [T, B]); where ``ended``,
+    the per-step value is that finished episode's minimum distance to goal (inf if no step
+    of it counted).
     """
-    positions, goals = np.asarray(positions, float), np.asarray(goals, float)
-    if positions.ndim != 3 or goals.shape != positions.shape[1:]:
-        raise ValueError(f"positions must be [T, B, d] and goals [B, d]; got {positions.shape} and {goals.shape}")
-    distance = np.linalg.norm(positions - goals[None], axis=-1)
-    if valid is not None:
-        distance = np.where(np.asarray(valid, bool), distance, np.inf)
-    return distance.min(axis=0)
+
+    def step(run, x):
+        d, v, e = x
+        run = jnp.minimum(run, jnp.where(v, d, jnp.inf))
+        return jnp.where(e, jnp.inf, run), run
+
+    return jax.lax.scan(step, running, (distance, valid, ended))
 
 
 def mean_and_stderr(values: Sequence[float]) -> dict[str, float]:
@@ -67,3 +74,10 @@ def aggregate_runs(reports: Sequence[dict]) -> list[dict]:
                             for name in ("volume", "success", "final_distance")}}
         for level in range(k)
     ]
+
+
+def aggregate_phase2(reports: Sequence[dict]) -> dict:
+    """Mean and standard error over runs (seeds) of phase 2's mean minimum distance and success."""
+    if not reports:
+        raise ValueError("aggregate_phase2 needs at least one report")
+    return {name: mean_and_stderr([r[name] for r in reports]) for name in ("min_distance", "success")}

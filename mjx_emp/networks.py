@@ -90,6 +90,20 @@ def level_policy(env: Env, actor: MLP, box_fn: BoxFn) -> LevelPolicy:
     return policy
 
 
+def greedy_batch(policy: LevelPolicy, actor: Params, box: Any) -> Callable[[jax.Array, jax.Array], jax.Array]:
+    """``policy`` without exploration noise over a batch of (obs, goal), in the action box ``box``."""
+    params = LevelParams(actor=actor, box=box, noise=jnp.zeros(()))
+    dummy = jax.random.key(0)
+    return lambda obs, goal: jax.vmap(policy, (None, 0, 0, None))(params, obs, goal, dummy)
+
+
+def goal_conditioned_q(critic: MLP, env: Env, params: Params, obs: jax.Array, goal: jax.Array,
+                       action: jax.Array) -> jax.Array:
+    """Q(s, z, a) of a goal-conditioned critic network."""
+    x = jnp.concatenate([goal_features(env, obs, goal), action], axis=-1)
+    return critic.apply(params, x)[..., 0]
+
+
 class GoalSpaceActor(nn.Module):
     """mu(s0) -> goal-space action (shift, log half-width) per goal dimension.
 

@@ -1,5 +1,6 @@
-"""Pictures of a run (matplotlib, PNG): goal-space growth over epochs, and the learned
-goal-space boxes at the start state drawn over the arena with sample trajectories."""
+"""Pictures of a run (matplotlib, PNG): goal-space growth over epochs, the learned
+goal-space boxes at the start state drawn over the arena with sample trajectories, and
+phase 2's learning curves."""
 
 from __future__ import annotations
 
@@ -8,11 +9,11 @@ from pathlib import Path
 
 import numpy as np
 
+from mjx_emp.run import METRICS_FILE
+
 
 def read_metrics(run_dir: Path) -> list[dict]:
     """The per-epoch metric lines of a run directory, in order."""
-    from mjx_emp.run import METRICS_FILE
-
     path = Path(run_dir) / METRICS_FILE
     return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
 
@@ -53,6 +54,27 @@ def plot_goal_space_growth(metrics: list[dict], path: Path) -> Path:
     volume_ax.legend()
     success_ax.set_ylabel("greedy success in own goal space")
     success_ax.set_xlabel("epoch")
+    success_ax.set_ylim(0, 1.05)
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def plot_phase2_curves(metrics: list[dict], eps: float, path: Path) -> Path:
+    """Phase 2's greedy mean minimum distance to goal (with eps marked) and success against env steps."""
+    plt = _pyplot()
+
+    if not metrics:
+        raise ValueError("no epochs to plot: metrics is empty")
+    steps = [m["env_steps"] for m in metrics]
+    fig, (distance_ax, success_ax) = plt.subplots(2, 1, sharex=True, figsize=(7, 6))
+    distance_ax.plot(steps, [m["min_distance"] for m in metrics], label="greedy policy")
+    distance_ax.axhline(eps, color="0.4", linestyle="--", label=f"eps = {eps:g}")
+    distance_ax.set_ylabel("mean min distance to goal")
+    distance_ax.set_ylim(bottom=0)
+    distance_ax.legend()
+    success_ax.plot(steps, [m["success"] for m in metrics])
+    success_ax.set_ylabel("success (within eps)")
+    success_ax.set_xlabel("phase-2 env steps")
     success_ax.set_ylim(0, 1.05)
     fig.tight_layout()
     return _save(fig, path)
@@ -103,16 +125,23 @@ def plot_run(run_dir: Path, chains: int = 8, skills_per_chain: int = 1) -> list[
     Always the goal-space growth. With checkpoints, also the goal-space boxes at the
     initial state before training (the run's own seed rebuilds epoch 0 exactly) and at the
     newest checkpoint, each with ``chains`` greedy chains of ``skills_per_chain`` top-level
-    skills from the initial state.
+    skills from the initial state. With a phase-2 directory (RUN_DIR/phase2), also its
+    learning curves.
     """
     import jax
 
     from mjx_emp.checkpoint import CHECKPOINT_SUBDIR
+    from mjx_emp.config import Phase2Config
     from mjx_emp.render import record_skill_chain
-    from mjx_emp.run import load_run
+    from mjx_emp.run import PHASE2_SUBDIR, load_run, read_run_config
 
     run_dir = Path(run_dir)
     paths = [plot_goal_space_growth(read_metrics(run_dir), run_dir / "plots" / "goal_space_growth.png")]
+    phase2_dir = run_dir / PHASE2_SUBDIR
+    phase2_metrics = read_metrics(phase2_dir) if (phase2_dir / METRICS_FILE).exists() else []
+    if phase2_metrics:
+        eps = read_run_config(phase2_dir, "run_dir", Phase2Config).eps
+        paths.append(plot_phase2_curves(phase2_metrics, eps, run_dir / "plots" / "phase2_curves.png"))
     if not (run_dir / CHECKPOINT_SUBDIR).exists():
         return paths
     trainer, epoch, state = load_run(run_dir)

@@ -52,8 +52,8 @@ def record_skill_chain(trainer, state, key, steps: int) -> Recording:
     from mjx_emp.train import MODE_STARTS
 
     k = trainer.cfg.k
-    params, start_params = trainer._rollout_inputs(state, jnp.int32(k), jnp.int32(MODE_STARTS))
-    h, start = trainer.hierarchy, trainer._start
+    params, start_params = trainer.rollout_inputs(state, jnp.int32(k), jnp.int32(MODE_STARTS))
+    h, start = trainer.hierarchy, trainer.start
     rollout_state = jit_init_rollout(h, params, start, start_params, key, 1, k)
     qpos, mocap, goals = [], [], []
     for _ in range(steps):

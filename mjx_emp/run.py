@@ -1,7 +1,9 @@
-"""A phase-1 training run in its run directory: config, metrics, checkpoints, progress.
+"""Training runs in their directories: config, metrics, checkpoints, progress, resume.
 
 Layout of RUN_DIR: ``config.json`` (the resolved TrainConfig), ``metrics.jsonl`` (one JSON
 line per finished epoch) and ``checkpoints/<epoch>/`` (orbax; epoch 0 is the initial state).
+A phase-2 directory (by default RUN_DIR/phase2) has the same layout with a Phase2Config,
+plus ``skills.json``, the phase-1 config of the skills it builds on.
 An epoch is kept only once its losses and parameters are finite; a run stopped at any point
 (crash, SIGKILL, NaN) resumes from its newest complete checkpoint and then computes exactly
 what the uninterrupted run would have.
@@ -18,11 +20,22 @@ import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
-from mjx_emp.config import ConfigError, TrainConfig, check_train_config, config_from_dict
+from mjx_emp.config import (
+    ConfigError,
+    Phase2Config,
+    TrainConfig,
+    check_phase2_config,
+    check_train_config,
+    config_from_dict,
+)
+from mjx_emp.experiments.phase2 import Phase2Experiment
 from mjx_emp.experiments.train import ResumeExperiment, TrainExperiment
 
 CONFIG_FILE = "config.json"
 METRICS_FILE = "metrics.jsonl"
+PHASE2_SUBDIR = "phase2"
+SKILLS_FILE = "skills.json"
+"""In a phase-2 directory: the phase-1 config of the skills it builds on."""
 
 
 class TrainingDiverged(RuntimeError):
@@ -57,13 +70,14 @@ def write_atomically(path: Path, text: str) -> None:
     os.replace(tmp, path)
 
 
-def read_run_config(run_dir: Path, field: str = "resume") -> TrainConfig:
-    """The TrainConfig saved in a run directory; errors name the file and the CLI ``field``."""
-    path = run_dir / CONFIG_FILE
+def read_run_config(run_dir: Path, field: str = "resume", config_type: type = TrainConfig,
+                    file: str = CONFIG_FILE):
+    """The config saved in a run directory; errors name the file and the CLI ``field``."""
+    path = run_dir / file
     try:
-        return config_from_dict(json.loads(path.read_text()))
+        return config_from_dict(json.loads(path.read_text()), config_type)
     except FileNotFoundError as err:
-        raise ConfigError(f"{field}: {str(run_dir)!r} has no {CONFIG_FILE}; is it a run directory?") from err
+        raise ConfigError(f"{field}: {str(run_dir)!r} has no {file}; is it a run directory?") from err
     except (json.JSONDecodeError, TypeError, ConfigError) as err:
         raise ConfigError(f"{field}: {path} is not a valid run config ({err})") from err
 
@@ -83,51 +97,35 @@ def keep_metrics_through(path: Path, epoch: int) -> None:
     write_atomically(path, "".join(line + "\n" for line in kept))
 
 
-def epoch_line(metrics: dict) -> str:
-    """One human-readable line of an epoch's metrics."""
-    levels = "  ".join(
-        f"L{m['level']} volume {m['volume']:.3g} success {m['success']:.2f}"
-        if m["success"] is not None else f"L{m['level']} volume {m['volume']:.3g}"
-        for m in metrics["levels"]
-    )
-    return (f"epoch {metrics['epoch']:4d}  {metrics['env_steps']:.3g} env steps  "
-            f"{metrics['env_steps_per_s']:.3g} steps/s  {levels}")
-
-
 @contextlib.contextmanager
-def progress_reporter(total_epochs: int, first_epoch: int) -> Iterator[Callable[[dict], None]]:
-    """Report each epoch: a live progress bar on a terminal, one plain line per epoch otherwise."""
+def progress_reporter(total_epochs: int, first_epoch: int,
+                      describe: Callable[[dict], str]) -> Iterator[Callable[[dict], None]]:
+    """Report each epoch: a live progress bar on a terminal, one plain line per epoch otherwise.
+
+    ``describe`` turns an epoch's metrics into the short summary shown.
+    """
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
     console = Console()
     if not console.is_terminal:
-        yield lambda metrics: print(epoch_line(metrics), flush=True)
+        yield lambda metrics: print(f"epoch {metrics['epoch']:4d}  {describe(metrics)}", flush=True)
         return
     columns = (TextColumn("epoch"), MofNCompleteColumn(), BarColumn(), TimeRemainingColumn(),
                TextColumn("{task.fields[info]}"))
     with Progress(*columns, console=console) as bar:
         task = bar.add_task("train", total=total_epochs, completed=first_epoch, info="compiling")
-
-        def report(metrics: dict) -> None:
-            top = metrics["levels"][-1]
-            info = (f"{metrics['env_steps']:.3g} env steps  {metrics['env_steps_per_s']:.3g} steps/s  "
-                    f"top volume {top['volume']:.3g}"
-                    + (f"  success {top['success']:.2f}" if top["success"] is not None else ""))
-            bar.update(task, completed=metrics["epoch"], info=info)
-
-        yield report
+        yield lambda metrics: bar.update(task, completed=metrics["epoch"], info=describe(metrics))
 
 
 def train_epochs(trainer, state, checkpoints, run_dir: Path, report: Callable[[dict], None]):
     """Train until ``trainer.cfg.epochs``, checkpointing and logging each finished epoch.
 
-    Raises TrainingDiverged, without saving, when an epoch's losses or parameters are not
-    finite; the newest checkpoint is then the last good epoch.
+    ``trainer`` is a phase-1 Trainer or a Phase2Trainer (both offer ``train_epoch``,
+    ``divergence`` and ``metrics``). Raises TrainingDiverged, without saving, when an epoch's
+    losses or parameters are not finite; the newest checkpoint is then the last good epoch.
     """
     import jax
-
-    from mjx_emp.train import divergence, epoch_metrics
 
     cfg = trainer.cfg
     with open(run_dir / METRICS_FILE, "a") as log:
@@ -137,7 +135,7 @@ def train_epochs(trainer, state, checkpoints, run_dir: Path, report: Callable[[d
             jax.block_until_ready(state)
             seconds = time.perf_counter() - start
             epoch = int(state.epoch)
-            problem = divergence(state, stats)
+            problem = trainer.divergence(state, stats)
             if problem:
                 checkpoints.wait()
                 kept = checkpoints.epochs()
@@ -146,7 +144,7 @@ def train_epochs(trainer, state, checkpoints, run_dir: Path, report: Callable[[d
                     f"checkpoint is epoch {kept[-1] if kept else None} in {checkpoints.directory}"
                 )
             save_seconds = checkpoints.save(epoch, state, cfg)
-            metrics = epoch_metrics(trainer, state, stats, seconds)
+            metrics = trainer.metrics(state, stats, seconds)
             metrics["checkpoint_blocked_s"] = save_seconds  # the write itself continues in the background
             log.write(json.dumps(metrics) + "\n")
             log.flush()
@@ -168,7 +166,7 @@ def _check_keep(keep_checkpoints: int) -> None:
 
 def _train_to_the_end(trainer, state, checkpoints, run_dir: Path):
     """Report progress while training to ``cfg.epochs``; then close ``checkpoints`` (waits for writes)."""
-    with checkpoints, progress_reporter(trainer.cfg.epochs, int(state.epoch)) as report:
+    with checkpoints, progress_reporter(trainer.cfg.epochs, int(state.epoch), trainer.describe) as report:
         return train_epochs(trainer, state, checkpoints, run_dir, report)
 
 
@@ -194,8 +192,9 @@ def start(exp: TrainExperiment):
     return _train_to_the_end(trainer, state, checkpoints, run_dir)
 
 
-def load_run(run_dir: Path, fallback: bool = False, epochs: int | None = None, field: str = "run_dir"):
-    """A run's trainer and its newest good checkpoint: ``(trainer, epoch, state)``.
+def load_run(run_dir: Path, fallback: bool = False, epochs: int | None = None, field: str = "run_dir",
+             epoch: int | None = None):
+    """A run's trainer and its newest good checkpoint (or ``epoch``'s): ``(trainer, epoch, state)``.
 
     ``epochs`` replaces the run's epoch count (the one setting a resume may change);
     ``field`` is the CLI field that errors about ``run_dir`` name.
@@ -211,21 +210,90 @@ def load_run(run_dir: Path, fallback: bool = False, epochs: int | None = None, f
     check_train_config(cfg)
     trainer = Trainer(cfg)
     with Checkpoints(Path(run_dir)) as checkpoints:
-        epoch, state = checkpoints.restore_latest(jax.eval_shape(trainer.init), cfg, fallback)
+        template = jax.eval_shape(trainer.init)
+        if epoch is None:
+            epoch, state = checkpoints.restore_latest(template, cfg, fallback)
+        elif epoch in checkpoints.epochs():
+            state = checkpoints.restore(epoch, template, cfg)
+        else:
+            raise ConfigError(f"phase1_epoch: {run_dir} has checkpoints of epochs {checkpoints.epochs()}; got {epoch}")
     return trainer, epoch, state
 
 
-def resume(exp: ResumeExperiment):
-    """Continue a run from its newest good checkpoint; returns the final TrainState."""
+def _resume(exp: ResumeExperiment, load: Callable, config_type: type):
+    """Continue a run directory from its newest good checkpoint (``load`` restores it)."""
     _check_keep(exp.keep_checkpoints)
     run_dir = Path(exp.resume)
-    trainer, epoch, state = load_run(run_dir, exp.fallback, exp.epochs, field="resume")
+    trainer, epoch, state = load(run_dir, exp.fallback, exp.epochs, field="resume")
     from mjx_emp.checkpoint import Checkpoints
 
     print(f"resuming {run_dir} from epoch {epoch}", flush=True)
     keep_metrics_through(run_dir / METRICS_FILE, epoch)
     write_atomically(run_dir / CONFIG_FILE, json.dumps(dataclasses.asdict(trainer.cfg), indent=1))
-    return _train_to_the_end(trainer, state, Checkpoints(run_dir, exp.keep_checkpoints), run_dir)
+    checkpoints = Checkpoints(run_dir, exp.keep_checkpoints, config_type)
+    return _train_to_the_end(trainer, state, checkpoints, run_dir)
+
+
+def resume(exp: ResumeExperiment):
+    """Continue a phase-1 run from its newest good checkpoint; returns the final TrainState."""
+    return _resume(exp, load_run, TrainConfig)
+
+
+def start_phase2(exp: Phase2Experiment):
+    """Train phase 2 on a phase-1 run's skills in a new phase-2 directory; returns the final state."""
+    check_phase2_config(exp.config)
+    _check_keep(exp.keep_checkpoints)
+    if not exp.run_dir:
+        raise ConfigError("run_dir: give the phase-1 run directory, e.g. `mjx-emp phase2 runs/pm1`")
+    from mjx_emp.checkpoint import Checkpoints
+    from mjx_emp.phase2 import Phase2Trainer
+
+    requested = None if exp.config.phase1_epoch < 0 else exp.config.phase1_epoch
+    skills, epoch, skills_state = load_run(Path(exp.run_dir), field="run_dir", epoch=requested)
+    cfg = dataclasses.replace(exp.config, phase1_epoch=epoch)
+    trainer = Phase2Trainer(skills, cfg)
+    out = prepare_run_dir(exp.out or str(Path(exp.run_dir) / PHASE2_SUBDIR))
+    if _holds_a_run(out):
+        raise ConfigError(
+            f"out: {str(out)!r} already holds a phase-2 run; continue it with "
+            f"`mjx-emp phase2 --resume {out}` or choose another --out"
+        )
+    print(f"phase 2 on the skills of {exp.run_dir} (epoch {epoch}), writing to {out}", flush=True)
+    write_atomically(out / SKILLS_FILE, json.dumps(dataclasses.asdict(skills.cfg), indent=1))
+    write_atomically(out / CONFIG_FILE, json.dumps(dataclasses.asdict(cfg), indent=1))
+    state = trainer.init(skills_state)
+    checkpoints = Checkpoints(out, exp.keep_checkpoints, Phase2Config)
+    checkpoints.save(0, state, cfg)
+    return _train_to_the_end(trainer, state, checkpoints, out)
+
+
+def load_phase2(phase2_dir: Path, fallback: bool = False, epochs: int | None = None, field: str = "run_dir"):
+    """A phase-2 directory's trainer and newest good checkpoint: ``(trainer, epoch, state)``.
+
+    The directory stands on its own: it holds the phase-1 config and the frozen skills.
+    """
+    import jax
+
+    from mjx_emp.checkpoint import Checkpoints
+    from mjx_emp.phase2 import Phase2Trainer
+    from mjx_emp.train import Trainer
+
+    phase2_dir = Path(phase2_dir)
+    cfg = read_run_config(phase2_dir, field, Phase2Config)
+    if epochs is not None:
+        cfg = dataclasses.replace(cfg, epochs=epochs)
+    skills_cfg = read_run_config(phase2_dir, field, TrainConfig, SKILLS_FILE)
+    check_train_config(skills_cfg)
+    trainer = Phase2Trainer(Trainer(skills_cfg), cfg)
+    template = jax.eval_shape(trainer.init, jax.eval_shape(trainer.skills.init))
+    with Checkpoints(phase2_dir, config_type=Phase2Config) as checkpoints:
+        epoch, state = checkpoints.restore_latest(template, cfg, fallback)
+    return trainer, epoch, state
+
+
+def resume_phase2(exp: ResumeExperiment):
+    """Continue a phase-2 directory from its newest good checkpoint; returns the final state."""
+    return _resume(exp, load_phase2, Phase2Config)
 
 
 def main_guarded(command: Callable, exp) -> None:
@@ -233,17 +301,15 @@ def main_guarded(command: Callable, exp) -> None:
     from mjx_emp.checkpoint import CheckpointError
     from mjx_emp.render import RenderError
 
+    failures = (
+        (ConfigError, "invalid configuration", 2),
+        (CheckpointError, "unusable checkpoint", 2),
+        (TrainingDiverged, "training diverged", 1),
+        (RenderError, "cannot render", 3),
+    )
     try:
         command(exp)
-    except ConfigError as err:
-        print(f"mjx-emp: invalid configuration: {err}", file=sys.stderr)
-        sys.exit(2)
-    except RenderError as err:
-        print(f"mjx-emp: cannot render: {err}", file=sys.stderr)
-        sys.exit(3)
-    except CheckpointError as err:
-        print(f"mjx-emp: unusable checkpoint: {err}", file=sys.stderr)
-        sys.exit(2)
-    except TrainingDiverged as err:
-        print(f"mjx-emp: training diverged: {err}", file=sys.stderr)
-        sys.exit(1)
+    except tuple(kind for kind, _, _ in failures) as err:
+        what, code = next((what, code) for kind, what, code in failures if isinstance(err, kind))
+        print(f"mjx-emp: {what}: {err}", file=sys.stderr)
+        sys.exit(code)

@@ -43,7 +43,9 @@ from mjx_emp.networks import (
     MLP,
     GoalSpaceActor,
     LevelParams,
+    goal_conditioned_q,
     goal_features,
+    greedy_batch,
     level_policy,
     primitive_box,
 )
@@ -174,7 +176,7 @@ class Trainer:
         env = make_env(self.cfg.env)
         object.__setattr__(self, "env", env)
         policies = tuple(
-            level_policy(env, self.actor_net(level), primitive_box if level == 0 else self._learned_box(level - 1))
+            level_policy(env, self.actor_net(level), primitive_box if level == 0 else self.learned_box(level - 1))
             for level in range(self.cfg.k)
         ) + (self._chooser,)
         hierarchy = Hierarchy(
@@ -203,7 +205,9 @@ class Trainer:
         """mu_level(s0): the (shift, log half-width) of the level's goal space at ``obs``."""
         return self.gs_actor_net(level).apply(params, self.env.features(obs))
 
-    def _learned_box(self, level: int):
+    def learned_box(self, level: int):
+        """The (params, obs) -> (shift, half_width) box of ``level``'s goal space, absolute widths."""
+
         def box(params: Params, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
             shift, log_half_width = gce.split_goal_space_action(self.goal_space_action(level, params, obs))
             return shift, jnp.exp(log_half_width)
@@ -218,8 +222,7 @@ class Trainer:
 
     def q_value(self, params: Params, obs: jax.Array, goal: jax.Array, action: jax.Array) -> jax.Array:
         """Q(s, z, a) of a goal-conditioned critic."""
-        x = jnp.concatenate([goal_features(self.env, obs, goal), action], axis=-1)
-        return self.critic_net.apply(params, x)[..., 0]
+        return goal_conditioned_q(self.critic_net, self.env, params, obs, goal, action)
 
     def gs_value(self, params: Params, obs: jax.Array, noise: jax.Array, action: jax.Array) -> jax.Array:
         """R(s0, noise, a) of a goal-space critic."""
@@ -271,12 +274,12 @@ class Trainer:
             starts=tuple(starts), chain=None, key=key,
             epoch=jnp.zeros((), jnp.int32), env_steps=jnp.zeros((), jnp.float32),
         )
-        params, start_params = self._rollout_inputs(state, jnp.int32(cfg.k), jnp.int32(MODE_STARTS))
-        chain = init_rollout(self.hierarchy, params, self._start, start_params, chain_key, cfg.num_envs, cfg.k)
+        params, start_params = self.rollout_inputs(state, jnp.int32(cfg.k), jnp.int32(MODE_STARTS))
+        chain = init_rollout(self.hierarchy, params, self.start, start_params, chain_key, cfg.num_envs, cfg.k)
         return state.replace(chain=chain)
 
     # ---- data collection ------------------------------------------------------------
-    def _rollout_inputs(self, state: TrainState, root: jax.Array, mode: jax.Array):
+    def rollout_inputs(self, state: TrainState, root: jax.Array, mode: jax.Array):
         """Per-level policy params (noise only on the trained level) and start params."""
         cfg = self.cfg
         params = tuple(
@@ -294,7 +297,7 @@ class Trainer:
         )
         return params, start_params
 
-    def _start(self, sp: StartParams, key: jax.Array):
+    def start(self, sp: StartParams, key: jax.Array):
         """A new episode at level ``sp.root``: s0 from its start buffer, z from its noisy box.
 
         Root k is the start-state chain: it begins at the initial state and its goal is
@@ -329,12 +332,12 @@ class Trainer:
         continues the greedy chain; the state each level got a new goal in is a start state.
         """
         cfg, env, h = self.cfg, self.env, self.hierarchy
-        params, start_params = self._rollout_inputs(state, root, mode)
+        params, start_params = self.rollout_inputs(state, root, mode)
         is_chain = mode == MODE_STARTS
         first = jax.lax.cond(
             is_chain,
             lambda: state.chain,
-            lambda: init_rollout(h, params, self._start, start_params, key, cfg.num_envs, root),
+            lambda: init_rollout(h, params, self.start, start_params, key, cfg.num_envs, root),
         )
         limit = self._max_chunks()[root]
         zero = jnp.zeros((), jnp.float32)
@@ -346,11 +349,11 @@ class Trainer:
         def chunk(carry):
             rs, buffers, chunks, totals = carry
             replay, gs_replay, starts = buffers
-            rs, transitions, episodes, stats = rollout(h, params, self._start, start_params, rs, cfg.chunk_steps)
+            rs, transitions, episodes, stats = rollout(h, params, self.start, start_params, rs, cfg.chunk_steps)
             transitions = flatten_rows(transitions)
             episodes = flatten_rows(episodes)
             replay = tuple(
-                replay_insert(replay[i], _gc_row(transitions[i]), transitions[i].valid & (root == i) & (mode == MODE_GC))
+                replay_insert(replay[i], gc_row(transitions[i]), transitions[i].valid & (root == i) & (mode == MODE_GC))
                 for i in range(cfg.k)
             )
             first_episode = episodes.valid & (episodes.index == 0)
@@ -400,41 +403,14 @@ class Trainer:
         return GSRow(obs=info.obs, noise=info.noise, action=info.action, reward=reward)
 
     # ---- learning -------------------------------------------------------------------
-    def _policy(self, level: int, actor: Params, box: Params):
-        """The level's deterministic policy over a batch, with its current action box."""
-        policy = self.hierarchy.policies[level]
-        params = LevelParams(actor=actor, box=box, noise=jnp.zeros(()))
-        dummy = jax.random.key(0)
-        return lambda obs, goal: jax.vmap(policy, (None, 0, 0, None))(params, obs, goal, dummy)
-
     def gc_losses(self, level: int, learner: GCLearner, box: Params, batch: GCRow):
         """(critic loss, actor loss) functions of one goal-conditioned minibatch (DDPG)."""
-        cfg, env = self.cfg, self.env
-        reward = gce.goal_conditioned_reward(batch.goal, env.goal_of_obs(batch.next_obs), cfg.sigma_gc[level])
-        discount = gce.goal_conditioned_discount(batch.reached, cfg.gamma)
-        next_action = self._policy(level, learner.target_actor, box)(batch.next_obs, batch.goal)
-        next_q = self.q_value(learner.target_critic, batch.next_obs, batch.goal, next_action)
-        target = jax.lax.stop_gradient(reward + discount * jnp.minimum(next_q, self.q_max(level)))
-
-        def critic_loss(critic):
-            q = self.q_value(critic, batch.obs, batch.goal, batch.action)
-            return jnp.mean(jnp.square(q - target))
-
-        def actor_loss(actor, critic):
-            action = self._policy(level, actor, box)(batch.obs, batch.goal)
-            return -jnp.mean(self.q_value(critic, batch.obs, batch.goal, action))
-
-        return critic_loss, actor_loss
-
-    def q_max(self, level: int) -> float:
-        """Largest value any return can have: every step at the reward's peak, never ending.
-
-        The reward log N(goal; h(s'), sigma) peaks at h(s') = goal. Bootstrapped targets are
-        capped here, which stops the critic's overestimation from feeding on itself.
-        """
-        d, sigma, gamma = self.env.goal_size, self.cfg.sigma_gc[level], self.cfg.gamma
-        peak = -d * (math.log(sigma) + 0.5 * gce.LOG_2PI)
-        return max(peak, peak / (1.0 - gamma))
+        cfg = self.cfg
+        policy = self.hierarchy.policies[level]
+        return ddpg_losses(
+            lambda actor, obs, goal: greedy_batch(policy, actor, box)(obs, goal),
+            self.q_value, learner, batch, self.env, cfg.sigma_gc[level], cfg.gamma,
+        )
 
     def _gc_update(self, level: int):
         cfg, opt = self.cfg, self.optimizers
@@ -446,18 +422,8 @@ class Trainer:
 
             def step(learner: GCLearner, step_key):
                 batch = replay_sample(replay[level], step_key, cfg.batch_size)
-                losses_fns = self.gc_losses(level, learner, box, batch)
-                actor, critic, actor_opt, critic_opt, losses = _actor_critic_step(
-                    *losses_fns, learner.actor, learner.critic, learner.actor_opt, learner.critic_opt,
-                    opt["actor"], opt["critic"],
-                )
-                learner = GCLearner(
-                    actor=actor, critic=critic,
-                    target_actor=optax.incremental_update(actor, learner.target_actor, cfg.tau),
-                    target_critic=optax.incremental_update(critic, learner.target_critic, cfg.tau),
-                    actor_opt=actor_opt, critic_opt=critic_opt,
-                )
-                return learner, losses
+                losses = self.gc_losses(level, learner, box, batch)
+                return gc_learner_step(learner, losses, opt["actor"], opt["critic"], cfg.tau)
 
             learner, losses = jax.lax.scan(step, gcs[level], jax.random.split(key, cfg.gc_grad_steps))
             gcs = gcs[:level] + (learner,) + gcs[level + 1 :]
@@ -571,6 +537,54 @@ class Trainer:
             })
         return boxes
 
+    def metrics(self, state: TrainState, stats: ItemStats, seconds: float) -> dict[str, Any]:
+        """One JSON-ready line of per-epoch metrics: goal spaces, success, losses, throughput."""
+        s = jax.tree.map(np.asarray, stats)
+        levels = []
+        for level, box in enumerate(self.goal_spaces(state)):
+            def pick(mode, field, reducer=np.mean):
+                rows = (s.root == level) & (s.mode == mode)
+                return float(reducer(getattr(s, field)[rows])) if rows.any() else None
+
+            levels.append({
+                "level": level,
+                **box,
+                "success": pick(MODE_EVAL, "reached"),
+                "final_distance": pick(MODE_EVAL, "final_distance"),
+                "gs_success": pick(MODE_GS, "reached"),
+                "gc_critic_loss": pick(MODE_GC, "critic_loss"),
+                "gc_actor_loss": pick(MODE_GC, "actor_loss"),
+                "gs_critic_loss": pick(MODE_GS, "critic_loss"),
+                "gs_actor_loss": pick(MODE_GS, "actor_loss"),
+                "transitions": pick(MODE_GC, "transitions", np.sum),
+            })
+        return {**epoch_header(state, float(s.env_steps.sum()), seconds), "levels": levels}
+
+    def divergence(self, state: TrainState, stats: ItemStats) -> str | None:
+        """Why this epoch's result must not be kept (a non-finite loss or parameter), or None.
+
+        Start-refresh and evaluation items carry NaN losses by design and are not checked.
+        """
+        s = jax.tree.map(np.asarray, stats)
+        for i in np.flatnonzero((s.mode == MODE_GC) | (s.mode == MODE_GS)):
+            for name in ("critic_loss", "actor_loss"):
+                value = getattr(s, name)[i]
+                if not np.isfinite(value):
+                    kind = "goal-conditioned" if s.mode[i] == MODE_GC else "goal-space"
+                    return f"level {int(s.root[i])} {kind} {name.replace('_', ' ')} is {value}"
+        if not bool(all_finite((state.gc, state.gs))):
+            return "a network parameter or optimizer state is not finite"
+        return None
+
+    def describe(self, metrics: dict) -> str:
+        """A short human-readable summary of an epoch's metrics: throughput, then per level."""
+        levels = "  ".join(
+            f"L{m['level']} volume {m['volume']:.3g} success {m['success']:.2f}"
+            if m["success"] is not None else f"L{m['level']} volume {m['volume']:.3g}"
+            for m in metrics["levels"]
+        )
+        return f"{metrics['env_steps']:.3g} env steps  {metrics['env_steps_per_s']:.3g} steps/s  {levels}"
+
 
 def _actor_critic_step(critic_loss, actor_loss, actor, critic, actor_opt, critic_opt, actor_tx, critic_tx):
     """One critic step, then one actor step through the updated critic; returns both losses.
@@ -587,7 +601,59 @@ def _actor_critic_step(critic_loss, actor_loss, actor, critic, actor_opt, critic
     return actor, critic, actor_opt, critic_opt, jnp.stack([c_loss, a_loss])
 
 
-def _gc_row(t: Transition) -> GCRow:
+def reward_cap(goal_size: int, sigma: float, gamma: float) -> float:
+    """Largest value any return can have: every step at the reward's peak, never ending.
+
+    The reward log N(goal; h(s'), sigma) peaks at h(s') = goal. Bootstrapped targets are
+    capped here, which stops the critic's overestimation from feeding on itself.
+    """
+    peak = -goal_size * (math.log(sigma) + 0.5 * gce.LOG_2PI)
+    return max(peak, peak / (1.0 - gamma))
+
+
+def ddpg_losses(policy, q_value, learner: GCLearner, batch: GCRow, env: Env, sigma: float, gamma: float):
+    """(critic loss, actor loss) functions of one goal-conditioned DDPG minibatch.
+
+    ``policy(actor, obs, goal)`` is the deterministic policy over a batch and
+    ``q_value(critic, obs, goal, action)`` the critic. The reward is the paper's
+    log N(goal; h(s'), sigma); the discount drops to 0 once the goal is reached, and
+    bootstrapped values are capped at :func:`reward_cap`. Every goal-conditioned level
+    of phase 1, and phase 2's added level, learn with these losses.
+    """
+    reward = gce.goal_conditioned_reward(batch.goal, env.goal_of_obs(batch.next_obs), sigma)
+    discount = gce.goal_conditioned_discount(batch.reached, gamma)
+    next_action = policy(learner.target_actor, batch.next_obs, batch.goal)
+    next_q = q_value(learner.target_critic, batch.next_obs, batch.goal, next_action)
+    cap = reward_cap(env.goal_size, sigma, gamma)
+    target = jax.lax.stop_gradient(reward + discount * jnp.minimum(next_q, cap))
+
+    def critic_loss(critic):
+        q = q_value(critic, batch.obs, batch.goal, batch.action)
+        return jnp.mean(jnp.square(q - target))
+
+    def actor_loss(actor, critic):
+        action = policy(actor, batch.obs, batch.goal)
+        return -jnp.mean(q_value(critic, batch.obs, batch.goal, action))
+
+    return critic_loss, actor_loss
+
+
+def gc_learner_step(learner: GCLearner, losses, actor_tx, critic_tx, tau: float) -> tuple[GCLearner, jax.Array]:
+    """One DDPG step of a goal-conditioned learner (critic, actor, Polyak targets); returns its losses."""
+    actor, critic, actor_opt, critic_opt, values = _actor_critic_step(
+        *losses, learner.actor, learner.critic, learner.actor_opt, learner.critic_opt, actor_tx, critic_tx,
+    )
+    learner = GCLearner(
+        actor=actor, critic=critic,
+        target_actor=optax.incremental_update(actor, learner.target_actor, tau),
+        target_critic=optax.incremental_update(critic, learner.target_critic, tau),
+        actor_opt=actor_opt, critic_opt=critic_opt,
+    )
+    return learner, values
+
+
+def gc_row(t: Transition) -> GCRow:
+    """The stored form of a level's transitions (reward and discount are derived on sampling)."""
     return GCRow(obs=t.obs, goal=t.goal, action=t.action, next_obs=t.next_obs, reached=t.reached)
 
 
@@ -596,56 +662,22 @@ _jit_train_epoch = jax.jit(Trainer._train_epoch, static_argnums=0, donate_argnum
 _jit_evaluate = jax.jit(Trainer._evaluate, static_argnums=(0, 4))
 
 
-def epoch_metrics(trainer: Trainer, state: TrainState, stats: ItemStats, seconds: float) -> dict[str, Any]:
-    """One JSON-ready line of per-epoch metrics: goal spaces, success, losses, throughput."""
-    s = jax.tree.map(np.asarray, stats)
-    levels = []
-    for level, box in enumerate(trainer.goal_spaces(state)):
-        def pick(mode, field, reducer=np.mean):
-            rows = (s.root == level) & (s.mode == mode)
-            return float(reducer(getattr(s, field)[rows])) if rows.any() else None
+def epoch_header(state: Any, epoch_env_steps: float, seconds: float) -> dict[str, Any]:
+    """The fields every epoch's metrics line starts with: counters and throughput.
 
-        levels.append({
-            "level": level,
-            **box,
-            "success": pick(MODE_EVAL, "reached"),
-            "final_distance": pick(MODE_EVAL, "final_distance"),
-            "gs_success": pick(MODE_GS, "reached"),
-            "gc_critic_loss": pick(MODE_GC, "critic_loss"),
-            "gc_actor_loss": pick(MODE_GC, "actor_loss"),
-            "gs_critic_loss": pick(MODE_GS, "critic_loss"),
-            "gs_actor_loss": pick(MODE_GS, "actor_loss"),
-            "transitions": pick(MODE_GC, "transitions", np.sum),
-        })
-    steps = float(s.env_steps.sum())
+    ``state`` is any train state with ``epoch`` and ``env_steps`` counters (phase 1 or 2).
+    """
     return {
         "epoch": int(state.epoch),
         "env_steps": float(state.env_steps),
-        "epoch_env_steps": steps,
+        "epoch_env_steps": epoch_env_steps,
         "seconds": seconds,
-        "env_steps_per_s": steps / seconds if seconds > 0 else None,
-        "levels": levels,
+        "env_steps_per_s": epoch_env_steps / seconds if seconds > 0 else None,
     }
 
 
 @jax.jit
-def _finite_learners(state: TrainState) -> jax.Array:
-    leaves = [x for x in jax.tree.leaves((state.gc, state.gs)) if jnp.issubdtype(x.dtype, jnp.floating)]
+def all_finite(tree: Any) -> jax.Array:
+    """Whether every floating-point array of ``tree`` (parameters, optimizer states) is finite."""
+    leaves = [x for x in jax.tree.leaves(tree) if jnp.issubdtype(x.dtype, jnp.floating)]
     return jnp.stack([jnp.all(jnp.isfinite(x)) for x in leaves]).all()
-
-
-def divergence(state: TrainState, stats: ItemStats) -> str | None:
-    """Why this epoch's result must not be kept (a non-finite loss or parameter), or None.
-
-    Start-refresh and evaluation items carry NaN losses by design and are not checked.
-    """
-    s = jax.tree.map(np.asarray, stats)
-    for i in np.flatnonzero((s.mode == MODE_GC) | (s.mode == MODE_GS)):
-        for name in ("critic_loss", "actor_loss"):
-            value = getattr(s, name)[i]
-            if not np.isfinite(value):
-                kind = "goal-conditioned" if s.mode[i] == MODE_GC else "goal-space"
-                return f"level {int(s.root[i])} {kind} {name.replace('_', ' ')} is {value}"
-    if not bool(_finite_learners(state)):
-        return "a network parameter or optimizer state is not finite"
-    return None

@@ -8,34 +8,49 @@ import math
 import numpy as np
 import pytest
 
-from mjx_emp.evaluate import aggregate_runs, mean_and_stderr, min_distance_to_goal
+from mjx_emp.evaluate import aggregate_phase2, aggregate_runs, mean_and_stderr, running_min_distance
 from mjx_emp import cli
-from mjx_emp.plots import plot_goal_space_boxes, plot_goal_space_growth
+from mjx_emp.plots import plot_goal_space_boxes, plot_goal_space_growth, plot_phase2_curves
+
+
+def _distances(positions, goals):
+    return np.linalg.norm(np.asarray(positions) - np.asarray(goals), axis=-1)
 
 
 def test_min_distance_is_the_closest_approach_of_each_episode():
-    # Episode 0 walks along x toward (3, 4) and passes closest at (3, 0): distance 4.
-    # Episode 1 reaches its goal exactly at step 2, then leaves.
-    positions = np.array([
-        [[0.0, 0.0], [1.0, 1.0]],
-        [[3.0, 0.0], [2.0, 2.0]],
-        [[6.0, 0.0], [3.0, 3.0]],
-    ])
-    goals = np.array([[3.0, 4.0], [3.0, 3.0]])
-    assert min_distance_to_goal(positions, goals).tolist() == [4.0, 0.0]
+    # Env 0 walks along x toward (3, 4) and passes closest at (3, 0): distance 4.
+    # Env 1 reaches its goal (3, 3) exactly at step 2, then leaves. Both episodes end at step 3.
+    positions = [[[0.0, 0.0], [1.0, 1.0]], [[3.0, 0.0], [2.0, 2.0]], [[6.0, 0.0], [3.0, 3.0]],
+                 [[9.0, 0.0], [4.0, 4.0]]]
+    goals = [[3.0, 4.0], [3.0, 3.0]]
+    ended = np.zeros((4, 2), bool)
+    ended[3] = True
+    running, per_step = running_min_distance(
+        _distances(positions, goals), np.ones((4, 2), bool), ended, np.full(2, np.inf)
+    )
+    assert np.asarray(per_step)[3].tolist() == [4.0, 0.0]
+    assert np.isinf(np.asarray(running)).all()  # both episodes ended: the next ones start afresh
 
 
-def test_min_distance_ignores_steps_outside_the_episode():
-    positions = np.array([[[5.0]], [[0.0]]])  # 1-D goal space (Half Cheetah), one episode
-    goals = np.array([[0.0]])
-    valid = np.array([[True], [False]])
-    assert min_distance_to_goal(positions, goals, valid).tolist() == [5.0]
-    assert min_distance_to_goal(positions, goals, np.zeros((2, 1), bool)).tolist() == [math.inf]
+def test_min_distance_follows_episodes_across_calls_and_restarts():
+    # 1-D goal space (Half Cheetah). Env 0: an episode with distances 5, 2 ends at step 1, the
+    # next one sees 7, 6 and continues into the second call, which brings 1 and ends it.
+    first_call = np.array([[5.0], [2.0], [7.0], [6.0]])
+    ended = np.array([[False], [True], [False], [False]])
+    running, per_step = running_min_distance(first_call, np.ones((4, 1), bool), ended, np.full(1, np.inf))
+    assert float(np.asarray(per_step)[1, 0]) == 2.0 and float(running[0]) == 6.0
+    running, per_step = running_min_distance(np.array([[1.0]]), np.ones((1, 1), bool), np.ones((1, 1), bool), running)
+    assert float(np.asarray(per_step)[0, 0]) == 1.0
 
 
-def test_min_distance_rejects_mismatched_shapes():
-    with pytest.raises(ValueError, match="positions must be"):
-        min_distance_to_goal(np.zeros((4, 2, 2)), np.zeros((3, 2)))
+def test_min_distance_ignores_steps_that_do_not_count():
+    # A physics reset's step (valid False) is no approach to the goal; an episode with no
+    # counted step has distance inf.
+    distance = np.array([[5.0, 3.0], [0.0, 0.0]])
+    valid = np.array([[True, False], [False, False]])
+    ended = np.array([[False, False], [True, True]])
+    _, per_step = running_min_distance(distance, valid, ended, np.full(2, np.inf))
+    assert np.asarray(per_step)[1, 0] == 5.0 and np.isinf(np.asarray(per_step)[1, 1])
 
 
 def test_mean_and_standard_error_over_seeds():
@@ -69,6 +84,21 @@ def test_runs_aggregate_per_level_and_must_have_the_same_depth():
     assert rows[0]["success"]["mean"] == pytest.approx(0.8)
     with pytest.raises(ValueError, match="same number of levels"):
         aggregate_runs([run([1.0], 0.9), run([1.0, 2.0], 0.9)])
+
+
+def test_phase2_figures_aggregate_over_seeds():
+    result = aggregate_phase2([{"min_distance": 0.2, "success": 1.0}, {"min_distance": 0.6, "success": 0.5}])
+    assert result["min_distance"]["mean"] == pytest.approx(0.4)
+    assert result["min_distance"]["stderr"] == pytest.approx(0.2)  # std 0.283 / sqrt(2)
+    assert result["success"]["count"] == 2
+
+
+def test_phase2_curves_plot_marks_eps(tmp_path):
+    metrics = [{"env_steps": 1e4 * e, "min_distance": 2.0 / e, "success": min(1.0, 0.1 * e)} for e in range(1, 11)]
+    pixels = drawn_png(plot_phase2_curves(metrics, 0.6, tmp_path / "phase2.png"))
+    assert pixels.shape == (600, 700, 3)
+    blue = np.array([31, 119, 180])
+    assert (np.abs(pixels.astype(int) - blue).sum(axis=-1) < 30).sum() > 100  # the curves were drawn
 
 
 def drawn_png(path) -> np.ndarray:

@@ -12,6 +12,7 @@ import pytest
 from mjx_emp import gce
 from mjx_emp.config import ConfigError, TrainConfig
 from mjx_emp.envs import make_env
+from mjx_emp.networks import greedy_batch
 from mjx_emp.train import (
     MODE_EVAL,
     MODE_GC,
@@ -19,8 +20,8 @@ from mjx_emp.train import (
     MODE_STARTS,
     GCRow,
     Trainer,
-    epoch_metrics,
     epoch_schedule,
+    reward_cap,
 )
 from tiny import TINY, tiny_after_two_epochs, tiny_trainer
 
@@ -34,10 +35,9 @@ def test_schedule_follows_the_appendix_per_level():
         assert list(modes) == [MODE_GC] * 10 + [MODE_GS] + [MODE_EVAL]
 
 
-def test_q_max_is_the_reward_peak_summed_over_an_endless_episode():
-    trainer = tiny_trainer()
+def test_reward_cap_is_the_reward_peak_summed_over_an_endless_episode():
     peak = float(gce.goal_conditioned_reward(jnp.zeros(2), jnp.zeros(2), 0.4))
-    assert trainer.q_max(0) == pytest.approx(max(peak, peak / (1 - TINY.gamma)), rel=1e-5)
+    assert reward_cap(2, 0.4, TINY.gamma) == pytest.approx(max(peak, peak / (1 - TINY.gamma)), rel=1e-5)
     assert math.isclose(peak, -2 * (math.log(0.4) + 0.5 * math.log(2 * math.pi)), rel_tol=1e-5)
 
 
@@ -86,8 +86,9 @@ def test_gc_critic_target_masks_bootstrap_where_reached():
     critic_loss, _ = trainer.gc_losses(0, learner, None, batch)
     q = trainer.q_value(learner.critic, obs, batch.goal, batch.action)
     reward = gce.goal_conditioned_reward(batch.goal, jnp.zeros((2, 2)), TINY.sigma_gc[0])
-    next_action = trainer._policy(0, learner.target_actor, None)(obs, batch.goal)
-    next_q = jnp.minimum(trainer.q_value(learner.target_critic, obs, batch.goal, next_action), trainer.q_max(0))
+    next_action = greedy_batch(trainer.hierarchy.policies[0], learner.target_actor, None)(obs, batch.goal)
+    cap = reward_cap(2, TINY.sigma_gc[0], TINY.gamma)
+    next_q = jnp.minimum(trainer.q_value(learner.target_critic, obs, batch.goal, next_action), cap)
     target = reward + jnp.array([0.0, TINY.gamma]) * next_q
     np.testing.assert_allclose(critic_loss(learner.critic), jnp.mean(jnp.square(q - target)), rtol=1e-5)
 
@@ -115,7 +116,7 @@ def test_two_epochs_fill_buffers_learn_and_do_not_recompile():
 
 def test_epoch_metrics_report_every_level():
     trainer, _, state, _, second = tiny_after_two_epochs()
-    metrics = epoch_metrics(trainer, state, second, 1.0)
+    metrics = trainer.metrics(state, second, 1.0)
     assert metrics["epoch"] == 2 and len(metrics["levels"]) == 2
     for level in metrics["levels"]:
         assert level["volume"] == pytest.approx(np.prod(2 * np.asarray(level["half_width"])), rel=1e-4)

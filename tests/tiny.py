@@ -9,7 +9,7 @@ import sys
 import jax
 import numpy as np
 
-from mjx_emp.config import TrainConfig
+from mjx_emp.config import Phase2Config, TrainConfig
 from mjx_emp.train import Trainer, _jit_train_epoch
 
 TINY = TrainConfig(
@@ -17,6 +17,11 @@ TINY = TrainConfig(
     init_half_width=(0.3, 0.6), max_half_width=(3.0, 6.0), num_envs=8, chunk_steps=3,
     gc_iterations=2, gc_grad_steps=3, gs_grad_steps=2, batch_size=16, replay_capacity=512,
     gs_replay_capacity=64, start_capacity=64, start_chain=2, hidden=(16,), seed=3,
+)
+
+TINY_PHASE2 = Phase2Config(
+    n=3, eps=0.6, sigma=0.6, region=(2.0, 2.0), region_offset=(0.0, 0.0), num_envs=8, iterations=2,
+    grad_steps=3, batch_size=16, replay_capacity=256, eval_rounds=1, hidden=(16,), epochs=2, seed=5,
 )
 
 

@@ -1,0 +1,328 @@
+"""Phase 2: a goal-conditioned policy over a trained agent's frozen skills.
+
+The paper's downstream task: reach a goal drawn uniformly from a hand-designed region
+around the initial state (its Table 2). An added level k sits on top of the k skill
+levels learned in phase 1. It has a goal-conditioned actor-critic and no goal-space
+policy; its action is a subgoal for level k-1, squashed into the top level's learned
+goal space at the current state (the paper's architecture with bounds and shifts from
+mu_{k-1}). Each episode starts at the task's initial state and gives the policy ``n``
+attempts, i.e. top-level skills, to come within ``eps`` of its goal. Phase 1's networks
+are frozen.
+
+Learning is phase 1's goal-conditioned DDPG at one more level: the reward is the
+goal-conditioned reward log N(goal; h(s'), sigma) per attempt (the paper does not state
+phase 2's reward; this is our choice), discounted, with the discount dropping to 0 once
+the goal is reached. An epoch is one jitted call: a ``lax.scan`` over ``iterations``
+collect-and-update items and ``eval_rounds`` greedy evaluation items, all through one
+compiled k+1-level rollout.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+from flax import struct
+
+from mjx_emp.buffers import ReplayBuffer, flatten_rows, replay_init, replay_insert, replay_sample
+from mjx_emp.config import Phase2Config, check_phase2_config
+from mjx_emp.evaluate import running_min_distance
+from mjx_emp.hierarchy import Hierarchy, Params, init_rollout, rollout
+from mjx_emp.networks import MLP, LevelParams, goal_conditioned_q, goal_features, greedy_batch, level_policy
+from mjx_emp.train import (
+    GCLearner,
+    GCRow,
+    Trainer,
+    TrainState,
+    all_finite,
+    ddpg_losses,
+    epoch_header,
+    gc_learner_step,
+    gc_row,
+)
+
+
+@struct.dataclass
+class Phase2State:
+    """Everything phase 2 learns or remembers, with the frozen skills it builds on.
+
+    ``skills`` holds phase 1's goal-conditioned actors (levels 0..k-1) and ``boxes`` its
+    goal-space actors, so a phase-2 checkpoint stands on its own.
+    """
+
+    skills: tuple[Params, ...]
+    boxes: tuple[Params, ...]
+    learner: GCLearner
+    replay: ReplayBuffer
+    key: jax.Array
+    epoch: jax.Array
+    env_steps: jax.Array
+
+
+@struct.dataclass
+class Phase2Stats:
+    """What one epoch item did: whether it trained, the episodes it saw, its losses."""
+
+    train: jax.Array
+    env_steps: jax.Array
+    transitions: jax.Array
+    episodes: jax.Array
+    success: jax.Array
+    min_distance: jax.Array
+    critic_loss: jax.Array
+    actor_loss: jax.Array
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Phase2Trainer:
+    """Static side of phase 2: the skill agent, the added level's networks, the k+1-level rollout.
+
+    Build it once per (phase-1 config, phase-2 config); it is a static jit argument.
+    """
+
+    skills: Trainer
+    cfg: Phase2Config
+    hierarchy: Hierarchy = dataclasses.field(init=False)
+
+    def __post_init__(self):
+        check_phase2_config(self.cfg, self.skills.env.goal_size)
+        k, phase1 = self.level, self.skills.cfg
+        policy = level_policy(self.env, self.actor_net, self.skills.learned_box(k - 1))
+        hierarchy = Hierarchy(
+            self.env, self.skills.hierarchy.policies[:k] + (policy,),
+            n=tuple(phase1.n) + (self.cfg.n,), eps=tuple(phase1.eps) + (self.cfg.eps,),
+        )
+        object.__setattr__(self, "hierarchy", hierarchy)
+
+    @property
+    def env(self):
+        return self.skills.env
+
+    @property
+    def level(self) -> int:
+        """The added level's index: k, on top of the k skill levels."""
+        return self.skills.cfg.k
+
+    @functools.cached_property
+    def actor_net(self) -> MLP:
+        return MLP(tuple(self.cfg.hidden), self.env.goal_size)
+
+    @functools.cached_property
+    def critic_net(self) -> MLP:
+        return MLP(tuple(self.cfg.hidden), 1)
+
+    @functools.cached_property
+    def optimizers(self) -> tuple[optax.GradientTransformation, optax.GradientTransformation]:
+        return optax.adam(self.cfg.actor_lr), optax.adam(self.cfg.critic_lr)
+
+    def q_value(self, params: Params, obs: jax.Array, goal: jax.Array, action: jax.Array) -> jax.Array:
+        """Q(s, goal, subgoal) of the phase-2 critic."""
+        return goal_conditioned_q(self.critic_net, self.env, params, obs, goal, action)
+
+    # ---- state ----------------------------------------------------------------------
+    def init(self, skills_state: TrainState, key: jax.Array | None = None) -> Phase2State:
+        """Fresh phase-2 networks and an empty replay on top of ``skills_state``'s frozen skills."""
+        return _jit_init(self, skills_state, jax.random.key(self.cfg.seed) if key is None else key)
+
+    def _init(self, skills_state: TrainState, key: jax.Array) -> Phase2State:
+        env, cfg = self.env, self.cfg
+        obs, goal = jnp.asarray(self.skills.initial_obs), jnp.zeros(env.goal_size)
+        key, actor_key, critic_key = jax.random.split(key, 3)
+        actor = self.actor_net.init(actor_key, goal_features(env, obs, goal))
+        critic = self.critic_net.init(critic_key, jnp.concatenate([goal_features(env, obs, goal), goal]))
+        actor_tx, critic_tx = self.optimizers
+        learner = GCLearner(actor, critic, actor, critic, actor_tx.init(actor), critic_tx.init(critic))
+        row = GCRow(obs, goal, goal, obs, jnp.zeros((), bool))
+        return Phase2State(
+            skills=tuple(g.actor for g in skills_state.gc), boxes=tuple(g.actor for g in skills_state.gs),
+            learner=learner, replay=replay_init(row, cfg.replay_capacity), key=key,
+            epoch=jnp.zeros((), jnp.int32), env_steps=jnp.zeros((), jnp.float32),
+        )
+
+    # ---- episodes -------------------------------------------------------------------
+    def region(self) -> tuple[np.ndarray, np.ndarray]:
+        """The goal region as absolute (low, high) corners in goal space."""
+        centre = self.env.goal_of_obs(self.skills.initial_obs) + np.asarray(self.cfg.region_offset)
+        half = np.asarray(self.cfg.region) / 2
+        return centre - half, centre + half
+
+    def start(self, _: Any, key: jax.Array):
+        """A new episode: the task's initial state, with a goal uniform in the region."""
+        env_key, goal_key = jax.random.split(key)
+        low, high = self.region()
+        goal = jax.random.uniform(goal_key, low.shape, minval=low, maxval=high)
+        return self.env.restore(env_key, jnp.asarray(self.skills.initial_obs)), goal, ()
+
+    def rollout_params(self, state: Phase2State, noise: jax.Array) -> tuple[LevelParams, ...]:
+        """Per-level policy params: the frozen skills, then the added level with ``noise``."""
+        k, zero = self.level, jnp.zeros(())
+        skills = tuple(
+            LevelParams(actor=state.skills[level], box=None if level == 0 else state.boxes[level - 1], noise=zero)
+            for level in range(k)
+        )
+        return skills + (LevelParams(actor=state.learner.actor, box=state.boxes[k - 1], noise=noise),)
+
+    def max_chunks(self) -> int:
+        """Rollout calls that let every environment finish one episode (every attempt used)."""
+        longest = self.cfg.n * math.prod(self.skills.cfg.n)
+        return math.ceil(longest / self.skills.cfg.chunk_steps) + 1
+
+    def _collect(self, state: Phase2State, noise: jax.Array, store: jax.Array, key: jax.Array):
+        """Run num_envs episodes (each environment to the end of its first at least).
+
+        Where ``store``, every attempt goes to the replay. Returns the new state and
+        (env steps, stored transitions, first episodes, their success rate, their mean
+        minimum distance to goal).
+        """
+        h, k, chunk_steps = self.hierarchy, self.level, self.skills.cfg.chunk_steps
+        params = self.rollout_params(state, noise)
+        first = init_rollout(h, params, self.start, None, key, self.cfg.num_envs, k)
+        zero = jnp.zeros((), jnp.float32)
+
+        def unfinished(carry):
+            rs, _, _, chunks, _ = carry
+            return (chunks < self.max_chunks()) & jnp.any(rs.episodes_done == 0)
+
+        def chunk(carry):
+            rs, replay, running, chunks, totals = carry
+            rs, transitions, episodes, stats = rollout(h, params, self.start, None, rs, chunk_steps)
+            top, bottom = transitions[k], transitions[0]
+            replay = replay_insert(replay, flatten_rows(gc_row(top)), flatten_rows(top.valid) & store)
+            distance = jnp.linalg.norm(self.env.goal_of_obs(bottom.next_obs) - top.goal, axis=-1)
+            running, per_step = running_min_distance(distance, bottom.valid, top.final, running)
+            counted = episodes.valid & (episodes.index == 0)
+            totals = (
+                totals[0] + stats.primitive_steps.astype(jnp.float32),
+                totals[1] + (top.valid & store).sum(),
+                totals[2] + counted.sum(),
+                totals[3] + (counted & episodes.reached).sum(),
+                totals[4] + jnp.where(counted, per_step, 0.0).sum(),
+            )
+            return rs, replay, running, chunks + 1, totals
+
+        running = jnp.full(self.cfg.num_envs, jnp.inf)
+        carry = (first, state.replay, running, jnp.zeros((), jnp.int32),
+                 (zero, jnp.int32(0), jnp.int32(0), jnp.int32(0), zero))
+        _, replay, _, _, totals = jax.lax.while_loop(unfinished, chunk, carry)
+        state = state.replace(replay=replay, env_steps=state.env_steps + totals[0])
+        episodes = jnp.maximum(totals[2], 1)
+        return state, (totals[0], totals[1], totals[2], totals[3] / episodes, totals[4] / episodes)
+
+    # ---- learning -------------------------------------------------------------------
+    def losses(self, learner: GCLearner, box: Params, batch: GCRow):
+        """(critic loss, actor loss) functions of one phase-2 minibatch (DDPG, as in phase 1)."""
+        policy = self.hierarchy.policies[self.level]
+        return ddpg_losses(
+            lambda actor, obs, goal: greedy_batch(policy, actor, box)(obs, goal),
+            self.q_value, learner, batch, self.env, self.cfg.sigma, self.cfg.gamma,
+        )
+
+    def _update(self, state: Phase2State, key: jax.Array) -> tuple[Phase2State, jax.Array]:
+        cfg = self.cfg
+        actor_tx, critic_tx = self.optimizers
+        box = state.boxes[self.level - 1]
+
+        def step(learner: GCLearner, step_key):
+            batch = replay_sample(state.replay, step_key, cfg.batch_size)
+            return gc_learner_step(learner, self.losses(learner, box, batch), actor_tx, critic_tx, cfg.tau)
+
+        learner, losses = jax.lax.scan(step, state.learner, jax.random.split(key, cfg.grad_steps))
+        return state.replace(learner=learner), losses.mean(axis=0)
+
+    def _train_epoch(self, state: Phase2State) -> tuple[Phase2State, Phase2Stats]:
+        cfg = self.cfg
+
+        def item(state: Phase2State, train: jax.Array):
+            key, collect_key, update_key = jax.random.split(state.key, 3)
+            noise = jnp.where(train, cfg.action_noise, 0.0)
+            state, (steps, transitions, episodes, success, distance) = self._collect(
+                state.replace(key=key), noise, train, collect_key
+            )
+            state, losses = jax.lax.cond(
+                train, self._update, lambda s, _: (s, jnp.full(2, jnp.nan)), state, update_key
+            )
+            stats = Phase2Stats(
+                train=train, env_steps=steps, transitions=transitions, episodes=episodes, success=success,
+                min_distance=distance, critic_loss=losses[0], actor_loss=losses[1],
+            )
+            return state, stats
+
+        schedule = jnp.asarray([True] * cfg.iterations + [False] * cfg.eval_rounds)
+        state, stats = jax.lax.scan(item, state, schedule)
+        return state.replace(epoch=state.epoch + 1), stats
+
+    def train_epoch(self, state: Phase2State) -> tuple[Phase2State, Phase2Stats]:
+        """One phase-2 epoch as one jitted call; returns per-item stats."""
+        return _jit_train_epoch(self, state)
+
+    def evaluate(self, state: Phase2State, key: jax.Array, episodes: int = 400) -> dict[str, float]:
+        """The paper's phase-2 figures of the greedy policy on at least ``episodes`` fresh goals.
+
+        Whole rounds of num_envs episodes; returns the mean minimum distance to goal, the
+        success rate (within eps) and the number of episodes.
+        """
+        rounds = max(1, math.ceil(episodes / self.cfg.num_envs))
+        counts, success, distance = _jit_evaluate(self, state, key, rounds)
+        weights = np.asarray(counts, float)
+        return {
+            "min_distance": float(np.average(np.asarray(distance), weights=weights)),
+            "success": float(np.average(np.asarray(success), weights=weights)),
+            "episodes": int(weights.sum()),
+        }
+
+    def _evaluate(self, state: Phase2State, key: jax.Array, rounds: int):
+        def one(_, round_key):
+            _, (_, _, episodes, success, distance) = self._collect(state, jnp.zeros(()), jnp.bool_(False), round_key)
+            return None, (episodes, success, distance)
+
+        _, figures = jax.lax.scan(one, None, jax.random.split(key, rounds))
+        return figures
+
+    # ---- reporting ------------------------------------------------------------------
+    def metrics(self, state: Phase2State, stats: Phase2Stats, seconds: float) -> dict[str, Any]:
+        """One JSON-ready line of an epoch: greedy min distance and success, training figures."""
+        s = jax.tree.map(np.asarray, stats)
+        train, evals = s.train, ~s.train
+
+        def mean(field, rows):
+            values = getattr(s, field)[rows]
+            return float(values.mean()) if values.size else None
+
+        return {
+            **epoch_header(state, float(s.env_steps.sum()), seconds),
+            "min_distance": mean("min_distance", evals),
+            "success": mean("success", evals),
+            "train_min_distance": mean("min_distance", train),
+            "train_success": mean("success", train),
+            "critic_loss": mean("critic_loss", train),
+            "actor_loss": mean("actor_loss", train),
+            "transitions": float(s.transitions.sum()),
+        }
+
+    def describe(self, metrics: dict) -> str:
+        """A short human-readable summary of an epoch's metrics."""
+        return (f"{metrics['env_steps']:.3g} env steps  {metrics['env_steps_per_s']:.3g} steps/s  "
+                f"min distance {metrics['min_distance']:.3g} (eps {self.cfg.eps:g})  "
+                f"success {metrics['success']:.2f}")
+
+    def divergence(self, state: Phase2State, stats: Phase2Stats) -> str | None:
+        """Why this epoch's result must not be kept (a non-finite loss or parameter), or None."""
+        s = jax.tree.map(np.asarray, stats)
+        for name in ("critic_loss", "actor_loss"):
+            values = getattr(s, name)[s.train]
+            if not np.isfinite(values).all():
+                return f"phase-2 {name.replace('_', ' ')} is {values[~np.isfinite(values)][0]}"
+        if not bool(all_finite(state.learner)):
+            return "a phase-2 network parameter or optimizer state is not finite"
+        return None
+
+
+_jit_init = jax.jit(Phase2Trainer._init, static_argnums=0)
+_jit_train_epoch = jax.jit(Phase2Trainer._train_epoch, static_argnums=0, donate_argnums=1)
+_jit_evaluate = jax.jit(Phase2Trainer._evaluate, static_argnums=(0, 3))

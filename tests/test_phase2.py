@@ -1,0 +1,136 @@
+"""Phase 2 on a tiny agent: the added level's actions, goals, learning and failure handling."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from tiny import TINY, TINY_PHASE2, tiny_after_two_epochs
+
+from mjx_emp.config import ConfigError, Phase2Config, check_phase2_config
+from mjx_emp.envs import DOMAINS
+from mjx_emp.experiments.presets import PHASE2_PRESETS, PRESETS, phase2_preset_for
+from mjx_emp.networks import LevelParams
+from mjx_emp.phase2 import Phase2Trainer, _jit_train_epoch
+
+
+@pytest.fixture(scope="module")
+def tiny_phase2():
+    skills, _, skills_state, _, _ = tiny_after_two_epochs()
+    trainer = Phase2Trainer(skills, TINY_PHASE2)
+    return trainer, skills_state, trainer.init(skills_state)
+
+
+def test_the_added_level_sits_on_top_with_phase_2_n_and_eps(tiny_phase2):
+    trainer, _, _ = tiny_phase2
+    assert trainer.level == TINY.k
+    assert trainer.hierarchy.n == TINY.n + (TINY_PHASE2.n,)
+    assert trainer.hierarchy.eps == TINY.eps + (TINY_PHASE2.eps,)
+
+
+def test_episodes_start_at_the_initial_state_with_goals_uniform_in_the_region(tiny_phase2):
+    trainer, _, _ = tiny_phase2
+    states, goals, _ = jax.vmap(trainer.start, (None, 0))(None, jax.random.split(jax.random.key(0), 2000))
+    low, high = trainer.region()
+    goals = np.asarray(goals)
+    assert ((goals >= low) & (goals <= high)).all()
+    # Uniform: each quarter of the region along x gets about a quarter of the goals.
+    quarters = np.histogram(goals[:, 0], bins=4, range=(low[0], high[0]))[0]
+    assert (np.abs(quarters - 500) < 80).all()
+    np.testing.assert_allclose(np.asarray(jax.vmap(trainer.env.observe)(states)),
+                               np.broadcast_to(trainer.skills.initial_obs, (2000, trainer.skills.initial_obs.size)),
+                               atol=1e-6)
+
+
+def test_region_is_centred_on_h_s0_plus_the_offset(tiny_phase2):
+    trainer, _, _ = tiny_phase2
+    shifted = Phase2Trainer(trainer.skills, dataclasses.replace(TINY_PHASE2, region=(4.0, 2.0), region_offset=(1.0, 0.0)))
+    start = trainer.env.goal_of_obs(trainer.skills.initial_obs)
+    low, high = shifted.region()
+    np.testing.assert_allclose(low, start + [-1.0, -1.0])
+    np.testing.assert_allclose(high, start + [3.0, 1.0])
+
+
+def test_subgoals_stay_inside_the_top_goal_space_even_with_exploration_noise(tiny_phase2):
+    trainer, _, state = tiny_phase2
+    k, env = trainer.level, trainer.env
+    obs = jnp.asarray(trainer.skills.initial_obs) + 0.5 * jax.random.normal(jax.random.key(1), (256, env.obs_size))
+    goals = 3.0 * jax.random.normal(jax.random.key(2), (256, env.goal_size))
+    params = LevelParams(actor=state.learner.actor, box=state.boxes[k - 1], noise=jnp.asarray(2.0))
+    keys = jax.random.split(jax.random.key(3), 256)
+    subgoals = jax.vmap(trainer.hierarchy.policies[k], (None, 0, 0, 0))(params, obs, goals, keys)
+    shift, half_width = jax.vmap(trainer.skills.learned_box(k - 1), (None, 0))(state.boxes[k - 1], obs)
+    assert (np.abs(np.asarray(subgoals - shift)) <= np.asarray(half_width) + 1e-5).all()
+    assert np.asarray(jnp.abs(subgoals - shift) > 0.9 * half_width).any()  # the noise reaches the box's edge
+
+
+def test_two_epochs_train_the_added_level_only_and_do_not_recompile(tiny_phase2):
+    trainer, skills_state, state = tiny_phase2
+    before = jax.tree.map(np.asarray, state.learner.actor)
+    state, first = trainer.train_epoch(jax.tree.map(jnp.copy, state))
+    compiled = _jit_train_epoch._cache_size()
+    state, second = trainer.train_epoch(state)
+    assert _jit_train_epoch._cache_size() == compiled, "epoch 2 recompiled"
+    assert int(state.epoch) == 2 and float(state.env_steps) > 0
+    # The phase-1 skills and goal spaces are frozen.
+    for frozen, source in ((state.skills, tuple(g.actor for g in skills_state.gc)),
+                           (state.boxes, tuple(g.actor for g in skills_state.gs))):
+        for a, b in zip(jax.tree.leaves(frozen), jax.tree.leaves(source)):
+            np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    assert not all(np.array_equal(a, np.asarray(b)) for a, b in zip(jax.tree.leaves(before),
+                                                                      jax.tree.leaves(state.learner.actor)))
+    # One stored transition per attempt, with goals from the region.
+    size = int(state.replay.size)
+    assert size == int(np.asarray(first.transitions).sum() + np.asarray(second.transitions).sum()) > 0
+    low, high = trainer.region()
+    goals = np.asarray(state.replay.data.goal[:size])
+    assert ((goals >= low - 1e-6) & (goals <= high + 1e-6)).all()
+    metrics = trainer.metrics(state, second, 1.0)
+    assert 0.0 <= metrics["success"] <= 1.0 and 0.0 <= metrics["min_distance"] < 10.0
+    assert np.isfinite([metrics["critic_loss"], metrics["actor_loss"]]).all()
+    assert trainer.divergence(state, second) is None
+
+
+def test_divergence_names_the_phase_2_loss(tiny_phase2):
+    trainer, _, state = tiny_phase2
+    poisoned = state.replace(learner=state.learner.replace(
+        critic=jax.tree.map(lambda x: jnp.full_like(x, jnp.nan), state.learner.critic)))
+    poisoned, stats = trainer.train_epoch(jax.tree.map(jnp.copy, poisoned))
+    assert "phase-2 critic loss is nan" in trainer.divergence(poisoned, stats)
+
+
+def test_evaluation_counts_whole_rounds_of_greedy_episodes(tiny_phase2):
+    trainer, _, state = tiny_phase2
+    figures = trainer.evaluate(state, jax.random.key(0), episodes=10)
+    assert figures["episodes"] == 2 * TINY_PHASE2.num_envs  # 10 episodes round up to two rounds of 8
+    assert 0.0 <= figures["success"] <= 1.0 and np.isfinite(figures["min_distance"])
+
+
+@pytest.mark.parametrize("field, value, message", [
+    ("region", (2.0,), "region: the domain's goal space has 2"),
+    ("region", (2.0, -1.0), "region: give one length > 0"),
+    ("region_offset", (0.0,), "region_offset: the domain's goal space has 2"),
+    ("n", 0, "n: must be >= 1"),
+    ("eps", 0.0, "eps: must be > 0"),
+    ("gamma", 1.0, "gamma: must be in [0, 1)"),
+    ("phase1_epoch", -2, "phase1_epoch"),
+])
+def test_bad_phase2_values_name_the_field(field, value, message):
+    with pytest.raises(ConfigError, match=message.replace("[", r"\[").replace("(", r"\(").replace(")", r"\)")):
+        check_phase2_config(dataclasses.replace(Phase2Config(), **{field: value}), goal_size=2)
+
+
+def test_every_table_2_preset_builds_on_a_phase_1_preset_of_the_same_domain():
+    for name, (_, phase1, cfg) in PHASE2_PRESETS.items():
+        skills = PRESETS[phase1][1]
+        check_phase2_config(cfg, goal_size=len(DOMAINS[skills.env].goal_qpos))
+        if name.startswith(("ant", "half")):
+            assert name == phase1
+    assert phase2_preset_for(PRESETS["ant-field-xl-k3"][1]) == "ant-field-xl-k3"
+    assert phase2_preset_for(PRESETS["point-mass-k2"][1]) == "point-mass-wide-k2"
+    assert phase2_preset_for(dataclasses.replace(PRESETS["point-mass-k2"][1], n=(7, 7))) is None
+    cheetah = PHASE2_PRESETS["half-cheetah-big-k2"][2]
+    assert cheetah.region == (450.0,) and cheetah.region_offset[0] > 0  # lies ahead of the start
