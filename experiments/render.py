@@ -9,7 +9,8 @@ import tyro
 
 @dataclasses.dataclass(frozen=True)
 class RenderExperiment:
-    """Render the greedy chain of top-level skills from RUN_DIR's newest checkpoint as a GIF."""
+    """Render the greedy chain of top-level skills from RUN_DIR's newest checkpoint as a GIF
+    (or, with --phase2, the phase-2 policy reaching goals from its region)."""
 
     run_dir: tyro.conf.Positional[str]
     """Run directory written by `mjx-emp train`."""
@@ -24,6 +25,8 @@ class RenderExperiment:
     distance: float = 6.0
     """Camera distance from the torso."""
     seed: int = 0
-    """Seed of the skills drawn from the top goal space."""
+    """Seed of the skills drawn from the top goal space (or of the phase-2 goals)."""
+    phase2: bool = False
+    """Film the phase-2 policy of RUN_DIR/phase2 instead of the skill chain."""
     out: str = ""
-    """Output GIF; empty means RUN_DIR/skills.gif."""
+    """Output GIF; empty means RUN_DIR/skills.gif (RUN_DIR/phase2.gif with --phase2)."""

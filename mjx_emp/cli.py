@@ -111,7 +111,7 @@ def plot(exp: PlotExperiment) -> None:
 
 
 def render(exp: RenderExperiment) -> None:
-    """Write a GIF of a run's greedy top-level skill chain with every level's subgoal drawn."""
+    """Write a GIF of a run's greedy top-level skill chain (or phase-2 policy), every level's goal drawn."""
     for name in ("steps", "width", "height"):
         if getattr(exp, name) < 1:
             raise ConfigError(f"{name}: must be >= 1; got {getattr(exp, name)}")
@@ -119,12 +119,21 @@ def render(exp: RenderExperiment) -> None:
         raise ConfigError(f"fps: must be > 0; got {exp.fps}")
     import jax
 
-    from mjx_emp.render import record_skill_chain, render_frames, write_gif
+    from mjx_emp.render import record_phase2, record_skill_chain, render_frames, write_gif
 
-    trainer, epoch, state = run.load_run(Path(exp.run_dir))
-    recording = record_skill_chain(trainer, state, jax.random.key(exp.seed), exp.steps)
+    if exp.phase2:
+        phase2_dir = Path(exp.run_dir) / run.PHASE2_SUBDIR
+        if not (phase2_dir / run.CONFIG_FILE).exists():
+            raise ConfigError(f"phase2: {str(phase2_dir)!r} holds no phase-2 run; train one with "
+                              f"`mjx-emp phase2 {exp.run_dir}`")
+        trainer, epoch, state = run.load_phase2(phase2_dir)
+        recording = record_phase2(trainer, state, jax.random.key(exp.seed), exp.steps)
+    else:
+        trainer, epoch, state = run.load_run(Path(exp.run_dir))
+        recording = record_skill_chain(trainer, state, jax.random.key(exp.seed), exp.steps)
     frames = render_frames(trainer.env, recording, exp.width, exp.height, exp.distance)
-    out = write_gif(frames, Path(exp.out or Path(exp.run_dir) / "skills.gif"), exp.fps)
+    default_name = "phase2.gif" if exp.phase2 else "skills.gif"
+    out = write_gif(frames, Path(exp.out or Path(exp.run_dir) / default_name), exp.fps)
     print(f"{out}: {len(frames)} frames of {exp.width}x{exp.height} (epoch {epoch})")
 
 

@@ -2,9 +2,10 @@
 
 The agent runs the same greedy chain of top-level skills that fills the start-state
 buffers: from the initial state, each top-level skill is drawn from the top goal space and
-executed by the levels below without exploration noise. Every primitive step becomes a
-frame, with each level's current subgoal drawn as a coloured sphere (level 0 yellow, then
-green, blue, magenta). Rendering uses MuJoCo's offscreen renderer, headless via EGL.
+executed by the levels below without exploration noise. Or, after phase 2, the phase-2
+policy reaches goals from its region, and the goal is drawn as one more level's marker.
+Every primitive step becomes a frame, with each level's current subgoal drawn as a
+coloured sphere (level 0 yellow, then green, blue, magenta). Rendering uses MuJoCo's offscreen renderer, headless via EGL.
 """
 
 from __future__ import annotations
@@ -43,26 +44,44 @@ class Recording:
     goals: np.ndarray  # [T, k, goal_size], absolute h-coordinates
 
 
-def record_skill_chain(trainer, state, key, steps: int) -> Recording:
-    """Run the greedy chain of top-level skills for ``steps`` primitive steps in one environment."""
+def record_rollout(h, params, start, start_params, key, steps: int, root: int) -> Recording:
+    """Run one environment of a rollout rooted at ``root`` for ``steps`` primitive steps, step by step.
+
+    Records joint positions, mocap bodies and the goals of levels 0..root.
+    """
     import jax
-    import jax.numpy as jnp
 
     from mjx_emp.hierarchy import jit_init_rollout, jit_rollout
-    from mjx_emp.train import MODE_STARTS
 
-    k = trainer.cfg.k
-    params, start_params = trainer.rollout_inputs(state, jnp.int32(k), jnp.int32(MODE_STARTS))
-    h, start = trainer.hierarchy, trainer.start
-    rollout_state = jit_init_rollout(h, params, start, start_params, key, 1, k)
+    rollout_state = jit_init_rollout(h, params, start, start_params, key, 1, root)
     qpos, mocap, goals = [], [], []
     for _ in range(steps):
         rollout_state = jit_rollout(h, params, start, start_params, rollout_state, 1)[0]
         data = jax.device_get(rollout_state.env.data)
         qpos.append(np.asarray(data.qpos[0]))
         mocap.append(np.asarray(data.mocap_pos[0]))
-        goals.append(np.stack([np.asarray(g[0]) for g in rollout_state.goals[:k]]))
+        goals.append(np.stack([np.asarray(g[0]) for g in rollout_state.goals[: root + 1]]))
     return Recording(np.stack(qpos), np.stack(mocap), np.stack(goals))
+
+
+def record_skill_chain(trainer, state, key, steps: int) -> Recording:
+    """The greedy chain of top-level skills from the initial state (subgoals of levels 0..k-1)."""
+    import jax.numpy as jnp
+
+    from mjx_emp.train import MODE_STARTS
+
+    k = trainer.cfg.k
+    params, start_params = trainer.rollout_inputs(state, jnp.int32(k), jnp.int32(MODE_STARTS))
+    recording = record_rollout(trainer.hierarchy, params, trainer.start, start_params, key, steps, k)
+    return dataclasses.replace(recording, goals=recording.goals[:, :k])  # level k's goal is a placeholder
+
+
+def record_phase2(trainer, state, key, steps: int) -> Recording:
+    """Greedy phase-2 episodes: goals from the region (drawn as level k's marker) and the subgoals below."""
+    import jax.numpy as jnp
+
+    params = trainer.rollout_params(state, jnp.zeros(()))
+    return record_rollout(trainer.hierarchy, params, trainer.start, None, key, steps, trainer.level)
 
 
 def marker_position(goal: np.ndarray, height: float = 0.1) -> np.ndarray:

@@ -77,6 +77,17 @@ def test_phase2_trains_on_the_runs_skills_and_resumes_exactly(trained_run, phase
         np.testing.assert_array_equal(a, b)
 
 
+def test_render_films_the_phase2_policy_with_its_goal(trained_run, phase2_run, tmp_path):
+    out = tmp_path / "phase2.gif"
+    result = run_cli("render", str(trained_run), "--phase2", "--steps", "4", "--width", "32", "--height", "24",
+                     "--out", str(out))
+    if result.returncode == 3:  # no offscreen OpenGL on this machine
+        pytest.skip(result.stderr.strip())
+    assert result.returncode == 0, result.stderr
+    with Image.open(out) as gif:
+        assert gif.n_frames == 4 and gif.size == (32, 24)
+
+
 @pytest.mark.parametrize("args, message", [
     (["--region", "3"], "region: the domain's goal space has 2"),
     (["--phase1-epoch", "7"], "phase1_epoch: "),
