@@ -132,7 +132,7 @@ def plot_run(run_dir: Path, chains: int = 8, skills_per_chain: int = 1) -> list[
 
     from mjx_emp.checkpoint import CHECKPOINT_SUBDIR
     from mjx_emp.config import Phase2Config
-    from mjx_emp.render import record_skill_chain
+    from mjx_emp.render import first_skills, record_skill_chain
     from mjx_emp.run import PHASE2_SUBDIR, load_run, read_run_config
 
     run_dir = Path(run_dir)
@@ -149,10 +149,9 @@ def plot_run(run_dir: Path, chains: int = 8, skills_per_chain: int = 1) -> list[
     start = np.asarray(trainer.env.goal_of_obs(trainer.initial_obs)).tolist()
     for name, snapshot, shown_epoch in (("goal_spaces_epoch0.png", trainer.init(), 0),
                                          ("goal_spaces.png", state, epoch)):
-        trajectories = [
-            record_skill_chain(trainer, snapshot, jax.random.key(seed), steps).qpos[:, list(trainer.env.goal_qpos)]
-            for seed in range(chains)
-        ]
+        recordings = [first_skills(record_skill_chain(trainer, snapshot, jax.random.key(seed), steps), skills_per_chain)
+                      for seed in range(chains)]
+        trajectories = [r.qpos[:, list(trainer.env.goal_qpos)] for r in recordings]
         paths.append(plot_goal_space_boxes(start, trainer.goal_spaces(snapshot), trajectories,
                                            run_dir / "plots" / name, title=f"{trainer.cfg.env}, epoch {shown_epoch}"))
     return paths

@@ -84,6 +84,14 @@ def record_phase2(trainer, state, key, steps: int) -> Recording:
     return record_rollout(trainer.hierarchy, params, trainer.start, None, key, steps, trainer.level)
 
 
+def first_skills(recording: Recording, skills: int) -> Recording:
+    """The recording cut where the top recorded level's ``skills``-th action ends (all of it if sooner)."""
+    top = recording.goals[:, -1]
+    ends = np.flatnonzero(np.any(top[1:] != top[:-1], axis=-1)) + 1  # a new top subgoal at these steps
+    stop = ends[skills - 1] + 1 if len(ends) >= skills else len(top)
+    return Recording(recording.qpos[:stop], recording.mocap_pos[:stop], recording.goals[:stop])
+
+
 def marker_position(goal: np.ndarray, height: float = 0.1) -> np.ndarray:
     """Where a subgoal is drawn: (x, y) goals on the floor plane, x-only goals on the y = 0 line."""
     x, y = (goal[0], goal[1]) if goal.shape[0] >= 2 else (goal[0], 0.0)

@@ -11,7 +11,16 @@ from PIL import Image
 from tiny import SMALL, run_cli
 
 from mjx_emp import checkpoint, run
-from mjx_emp.render import marker_position
+from mjx_emp.render import Recording, first_skills, marker_position
+
+
+def test_a_recording_is_cut_where_its_top_level_skills_end():
+    goals = np.array([[[0.0, 0.0], [1.0, 1.0]]] * 3 + [[[0.0, 0.0], [2.0, 2.0]]] * 2 + [[[0.0, 0.0], [3.0, 3.0]]])
+    recording = Recording(np.arange(6.0)[:, None], np.zeros((6, 0, 3)), goals)
+    # The first top-level skill ends at step 3 (a new top subgoal appears there), the second at 5.
+    assert first_skills(recording, 1).qpos[:, 0].tolist() == [0.0, 1.0, 2.0, 3.0]
+    assert first_skills(recording, 2).qpos[:, 0].tolist() == [0.0, 1.0, 2.0, 3.0, 4.0, 5.0]
+    assert len(first_skills(recording, 3).qpos) == 6  # fewer skills recorded: all of it
 
 
 def test_markers_sit_on_the_floor_plane_for_2d_goals_and_on_the_x_axis_for_1d_goals():
