@@ -47,8 +47,8 @@ def default_run_dir(cfg: TrainConfig) -> str:
     return f"runs/{cfg.env}-k{cfg.k}-{time.strftime('%Y%m%d-%H%M%S')}"
 
 
-def prepare_run_dir(path: str) -> Path:
-    """Create the run directory, or fail with a ConfigError naming run_dir."""
+def prepare_run_dir(path: str, field: str = "run_dir") -> Path:
+    """Create the run directory, or fail with a ConfigError naming ``field``."""
     run_dir = Path(path)
     try:
         run_dir.mkdir(parents=True, exist_ok=True)
@@ -56,7 +56,7 @@ def prepare_run_dir(path: str) -> Path:
         probe.write_text("")
         probe.unlink()
     except OSError as err:
-        raise ConfigError(f"run_dir: cannot write to {str(run_dir)!r} ({err.strerror})") from err
+        raise ConfigError(f"{field}: cannot write to {str(run_dir)!r} ({err.strerror})") from err
     return run_dir
 
 
@@ -170,26 +170,37 @@ def _train_to_the_end(trainer, state, checkpoints, run_dir: Path):
         return train_epochs(trainer, state, checkpoints, run_dir, report)
 
 
+def _fresh_run_dir(path: str, field: str, what: str, command: str) -> Path:
+    """Create the directory of a new run; one that already holds ``what`` is refused, naming ``field``."""
+    run_dir = prepare_run_dir(path, field)
+    if _holds_a_run(run_dir):
+        raise ConfigError(
+            f"{field}: {str(run_dir)!r} already holds {what}; continue it with "
+            f"`{command} --resume {run_dir}` or choose another --{field.replace('_', '-')}"
+        )
+    return run_dir
+
+
+def _train_new(trainer, state, run_dir: Path, keep_checkpoints: int, config_type: type):
+    """Write the config, checkpoint ``state`` as epoch 0, and train to the end."""
+    from mjx_emp.checkpoint import Checkpoints
+
+    write_atomically(run_dir / CONFIG_FILE, json.dumps(dataclasses.asdict(trainer.cfg), indent=1))
+    checkpoints = Checkpoints(run_dir, keep_checkpoints, config_type)
+    checkpoints.save(0, state, trainer.cfg)
+    return _train_to_the_end(trainer, state, checkpoints, run_dir)
+
+
 def start(exp: TrainExperiment):
     """Train a new run; returns the final TrainState."""
     check_train_config(exp.config)
     _check_keep(exp.keep_checkpoints)
-    run_dir = prepare_run_dir(exp.run_dir or default_run_dir(exp.config))
-    if _holds_a_run(run_dir):
-        raise ConfigError(
-            f"run_dir: {str(run_dir)!r} already holds a run; continue it with "
-            f"`mjx-emp train --resume {run_dir}` or choose another --run-dir"
-        )
-    from mjx_emp.checkpoint import Checkpoints
+    run_dir = _fresh_run_dir(exp.run_dir or default_run_dir(exp.config), "run_dir", "a run", "mjx-emp train")
     from mjx_emp.train import Trainer
 
     print(f"run directory: {run_dir}", flush=True)
-    write_atomically(run_dir / CONFIG_FILE, json.dumps(dataclasses.asdict(exp.config), indent=1))
     trainer = Trainer(exp.config)
-    state = trainer.init()
-    checkpoints = Checkpoints(run_dir, exp.keep_checkpoints)
-    checkpoints.save(0, state, exp.config)
-    return _train_to_the_end(trainer, state, checkpoints, run_dir)
+    return _train_new(trainer, trainer.init(), run_dir, exp.keep_checkpoints, TrainConfig)
 
 
 def load_run(run_dir: Path, fallback: bool = False, epochs: int | None = None, field: str = "run_dir",
@@ -245,26 +256,16 @@ def start_phase2(exp: Phase2Experiment):
     _check_keep(exp.keep_checkpoints)
     if not exp.run_dir:
         raise ConfigError("run_dir: give the phase-1 run directory, e.g. `mjx-emp phase2 runs/pm1`")
-    from mjx_emp.checkpoint import Checkpoints
     from mjx_emp.phase2 import Phase2Trainer
 
     requested = None if exp.config.phase1_epoch < 0 else exp.config.phase1_epoch
     skills, epoch, skills_state = load_run(Path(exp.run_dir), field="run_dir", epoch=requested)
     cfg = dataclasses.replace(exp.config, phase1_epoch=epoch)
     trainer = Phase2Trainer(skills, cfg)
-    out = prepare_run_dir(exp.out or str(Path(exp.run_dir) / PHASE2_SUBDIR))
-    if _holds_a_run(out):
-        raise ConfigError(
-            f"out: {str(out)!r} already holds a phase-2 run; continue it with "
-            f"`mjx-emp phase2 --resume {out}` or choose another --out"
-        )
+    out = _fresh_run_dir(exp.out or str(Path(exp.run_dir) / PHASE2_SUBDIR), "out", "a phase-2 run", "mjx-emp phase2")
     print(f"phase 2 on the skills of {exp.run_dir} (epoch {epoch}), writing to {out}", flush=True)
     write_atomically(out / SKILLS_FILE, json.dumps(dataclasses.asdict(skills.cfg), indent=1))
-    write_atomically(out / CONFIG_FILE, json.dumps(dataclasses.asdict(cfg), indent=1))
-    state = trainer.init(skills_state)
-    checkpoints = Checkpoints(out, exp.keep_checkpoints, Phase2Config)
-    checkpoints.save(0, state, cfg)
-    return _train_to_the_end(trainer, state, checkpoints, out)
+    return _train_new(trainer, trainer.init(skills_state), out, exp.keep_checkpoints, Phase2Config)
 
 
 def load_phase2(phase2_dir: Path, fallback: bool = False, epochs: int | None = None, field: str = "run_dir"):
