@@ -128,9 +128,7 @@ def check_train_config(cfg: TrainConfig) -> None:
             raise ConfigError(f"{name}: need one entry per level (k={cfg.k} from n); got {value}")
         if any(not v > 0 for v in value):
             raise ConfigError(f"{name}: every entry must be > 0; got {value}")
-    for name in _POSITIVE:
-        if getattr(cfg, name) < 1:
-            raise ConfigError(f"{name}: must be >= 1; got {getattr(cfg, name)}")
+    _check_counts(cfg, _POSITIVE)
     for level, (start, bound) in enumerate(zip(cfg.init_half_width, cfg.max_half_width)):
         if not start < bound:
             raise ConfigError(
@@ -139,14 +137,27 @@ def check_train_config(cfg: TrainConfig) -> None:
             )
     if cfg.eval_iterations < 0:
         raise ConfigError(f"eval_iterations: must be >= 0; got {cfg.eval_iterations}")
+    _check_learning(cfg, ("actor_lr", "critic_lr", "gs_actor_lr", "gs_critic_lr"),
+                    ("action_noise", "goal_noise", "gs_noise"))
+
+
+def _check_counts(cfg, names: tuple[str, ...]) -> None:
+    """Every named field (a count or size) is >= 1."""
+    for name in names:
+        if getattr(cfg, name) < 1:
+            raise ConfigError(f"{name}: must be >= 1; got {getattr(cfg, name)}")
+
+
+def _check_learning(cfg, learning_rates: tuple[str, ...], noises: tuple[str, ...]) -> None:
+    """The actor-critic settings both phases share: hidden widths, rates, tau, gamma, noise stds."""
     if not cfg.hidden or any(w < 1 for w in cfg.hidden):
         raise ConfigError(f"hidden: give one or more widths >= 1; got {cfg.hidden}")
-    for name in ("actor_lr", "critic_lr", "gs_actor_lr", "gs_critic_lr", "tau"):
+    for name in (*learning_rates, "tau"):
         if not 0 < getattr(cfg, name) <= 1:
             raise ConfigError(f"{name}: must be in (0, 1]; got {getattr(cfg, name)}")
     if not 0 <= cfg.gamma < 1:
         raise ConfigError(f"gamma: must be in [0, 1); got {cfg.gamma}")
-    for name in ("action_noise", "goal_noise", "gs_noise"):
+    for name in noises:
         if getattr(cfg, name) < 0:
             raise ConfigError(f"{name}: must be >= 0; got {getattr(cfg, name)}")
 
@@ -220,9 +231,7 @@ _P2_POSITIVE = ("n", "epochs", "num_envs", "iterations", "grad_steps", "batch_si
 
 def check_phase2_config(cfg: Phase2Config, goal_size: int | None = None) -> None:
     """Raise ConfigError naming the first invalid field of ``cfg`` (``goal_size``: the domain's)."""
-    for name in _P2_POSITIVE:
-        if getattr(cfg, name) < 1:
-            raise ConfigError(f"{name}: must be >= 1; got {getattr(cfg, name)}")
+    _check_counts(cfg, _P2_POSITIVE)
     for name in ("eps", "sigma"):
         if not getattr(cfg, name) > 0:
             raise ConfigError(f"{name}: must be > 0; got {getattr(cfg, name)}")
@@ -233,14 +242,6 @@ def check_phase2_config(cfg: Phase2Config, goal_size: int | None = None) -> None
             if len(getattr(cfg, name)) != goal_size:
                 raise ConfigError(f"{name}: the domain's goal space has {goal_size} dimension(s); "
                                   f"got {getattr(cfg, name)}")
-    if not cfg.hidden or any(w < 1 for w in cfg.hidden):
-        raise ConfigError(f"hidden: give one or more widths >= 1; got {cfg.hidden}")
-    for name in ("actor_lr", "critic_lr", "tau"):
-        if not 0 < getattr(cfg, name) <= 1:
-            raise ConfigError(f"{name}: must be in (0, 1]; got {getattr(cfg, name)}")
-    if not 0 <= cfg.gamma < 1:
-        raise ConfigError(f"gamma: must be in [0, 1); got {cfg.gamma}")
-    if cfg.action_noise < 0:
-        raise ConfigError(f"action_noise: must be >= 0; got {cfg.action_noise}")
+    _check_learning(cfg, ("actor_lr", "critic_lr"), ("action_noise",))
     if cfg.phase1_epoch < -1:
         raise ConfigError(f"phase1_epoch: an epoch >= 0, or -1 for the newest; got {cfg.phase1_epoch}")
