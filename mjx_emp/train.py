@@ -537,10 +537,33 @@ class Trainer:
             })
         return boxes
 
+    def boxes_where_used(self, state: TrainState, rows: int = 1024) -> list[dict[str, float] | None]:
+        """Each level's goal-space box at the states the level above chose subgoals in.
+
+        Level i's box is level i+1's action space at whatever state level i+1 acts from,
+        while level i's goal-space policy trains only on its start states. Where the two
+        sets of states differ, the box can grow far past what level i reaches, and level
+        i+1 then asks for subgoals it cannot get. ``rows`` states are drawn from level
+        i+1's replay; the top level (nothing above it) and an empty replay give None.
+        """
+        found: list[dict[str, float] | None] = []
+        for level in range(self.cfg.k - 1):
+            above = state.replay[level + 1]
+            if int(above.size) == 0:
+                found.append(None)
+                continue
+            obs = replay_sample(above, jax.random.fold_in(jax.random.key(0), state.epoch), rows).obs
+            shift, half_width = self.learned_box(level)(state.gs[level].actor, obs)
+            found.append({"max_abs_shift": float(jnp.abs(shift).max()),
+                          "mean_half_width": float(half_width.mean()),
+                          "max_half_width": float(half_width.max())})
+        return found + [None]
+
     def metrics(self, state: TrainState, stats: ItemStats, seconds: float) -> dict[str, Any]:
         """One JSON-ready line of per-epoch metrics: goal spaces, success, losses, throughput."""
         s = jax.tree.map(np.asarray, stats)
         levels = []
+        where_used = self.boxes_where_used(state)
         for level, box in enumerate(self.goal_spaces(state)):
             def pick(mode, field, reducer=np.mean):
                 rows = (s.root == level) & (s.mode == mode)
@@ -557,6 +580,7 @@ class Trainer:
                 "gs_critic_loss": pick(MODE_GS, "critic_loss"),
                 "gs_actor_loss": pick(MODE_GS, "actor_loss"),
                 "transitions": pick(MODE_GC, "transitions", np.sum),
+                "box_where_used": where_used[level],
             })
         return {**epoch_header(state, float(s.env_steps.sum()), seconds), "levels": levels}
 

@@ -123,6 +123,26 @@ def test_epoch_metrics_report_every_level():
         assert 0.0 <= level["success"] <= 1.0
         assert np.isfinite(level["gc_critic_loss"]) and np.isfinite(level["gs_critic_loss"])
     assert metrics["env_steps_per_s"] > 0
+    used = metrics["levels"][0]["box_where_used"]
+    assert used is not None and metrics["levels"][1]["box_where_used"] is None
+    assert 0 < used["mean_half_width"] <= used["max_half_width"] and np.isfinite(used["max_abs_shift"])
+
+
+def test_box_where_used_reads_level_zero_box_at_level_one_states():
+    # Fill level 1's replay with one known state: level 0's box there is the answer.
+    trainer, _, state, _, _ = tiny_after_two_epochs()
+    obs = jnp.asarray(trainer.initial_obs).at[2:].set(jnp.array([1.5, -0.7]))
+    replay = state.replay[1]
+    rows = replay.data.replace(obs=jnp.broadcast_to(obs, replay.data.obs.shape))
+    filled = replay.replace(data=rows, size=jnp.asarray(7, jnp.int32))
+    state = state.replace(replay=(state.replay[0], filled))
+    shift, half_width = trainer.learned_box(0)(state.gs[0].actor, obs)
+    used = trainer.boxes_where_used(state, rows=16)[0]
+    assert used["max_abs_shift"] == pytest.approx(float(jnp.abs(shift).max()), rel=1e-5)
+    assert used["mean_half_width"] == pytest.approx(float(half_width.mean()), rel=1e-5)
+    assert used["max_half_width"] == pytest.approx(float(half_width.max()), rel=1e-5)
+    empty = state.replace(replay=(state.replay[0], replay.replace(size=jnp.zeros((), jnp.int32))))
+    assert trainer.boxes_where_used(empty) == [None, None]
 
 
 def test_restore_round_trips_observations():
