@@ -25,6 +25,13 @@ seeds; with 0.2 it ended at 0.98-0.99 (two seeds). The two-level preset explores
 action noise 0.1 instead of 0.2: with 0.2 its level-1 policy ran away early (final
 distances of metres to goals 0.4 m away) and the level-1 box collapsed; with 0.1 it grew. The goal-space actor's 2e-4 is twice
 the paper presets' rate to fit CPU time, which makes the early epochs noisier.
+
+The two-level preset also runs 8 goal-space iterations per level per epoch instead of 1.
+With 64 environments one iteration is 64 episodes (the paper's 4096 environments give
+4096), too few for the goal-space critic at moving start states: there level 0's box
+swung out to |shift| ~2.5 by epoch 9 (a 1-2 m reach), level 1's subgoals fell out of
+reach, its critic diverged and the agent ran away (README, "Why level 1 of point-mass-k2
+breaks down"). With 8, the box at moving states stays within |shift| 0.3-0.7.
 """
 
 from __future__ import annotations
@@ -59,7 +66,7 @@ POINT_MASS_K1 = TrainConfig(
 )
 POINT_MASS_K2 = dataclasses.replace(
     POINT_MASS_K1, n=(10, 5), sigma_gc=(0.4, 0.8), sigma_gs=(0.2, 0.4), eps=(0.3, 0.6),
-    init_half_width=(0.2, 0.4), max_half_width=(3.0, 15.0), action_noise=0.1,
+    init_half_width=(0.2, 0.4), max_half_width=(3.0, 15.0), action_noise=0.1, gs_iterations=8,
 )
 
 PRESETS: dict[str, tuple[str, TrainConfig]] = {
@@ -121,6 +128,10 @@ PHASE2_PRESETS: dict[str, tuple[str, str, Phase2Config]] = {
                            "point-mass-k2", dataclasses.replace(_POINT_MASS_PHASE2, region=(8.0, 8.0))),
     "point-mass-wide-k1": ("CPU: point-mass-wide-k2's task for the k=1 agent", "point-mass-k1",
                            dataclasses.replace(_POINT_MASS_PHASE2, region=(8.0, 8.0))),
+    "point-mass-wider-k2": ("CPU: goals in a 16 x 16 square, beyond 3 of the k=1 agent's skills; 3 attempts",
+                            "point-mass-k2", dataclasses.replace(_POINT_MASS_PHASE2, region=(16.0, 16.0))),
+    "point-mass-wider-k1": ("CPU: point-mass-wider-k2's task for the k=1 agent", "point-mass-k1",
+                            dataclasses.replace(_POINT_MASS_PHASE2, region=(16.0, 16.0))),
     "ant-field-small-k1": ("Table 2: Ant Field Small, k=1", "ant-field-small-k1", _phase2(10, 1.8, 40, 2)),
     "ant-field-big-k1": ("Table 2: Ant Field Big, k=1", "ant-field-big-k1", _phase2(25, 2.4, 200, 2)),
     "ant-field-big-k2": ("Table 2: Ant Field Big, k=2", "ant-field-big-k2", _phase2(10, 2.4, 200, 2)),
