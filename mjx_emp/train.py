@@ -540,11 +540,11 @@ class Trainer:
     def boxes_where_used(self, state: TrainState, rows: int = 1024) -> list[dict[str, float] | None]:
         """Each level's goal-space box at the states the level above chose subgoals in.
 
-        Level i's box is level i+1's action space at whatever state level i+1 acts from,
-        while level i's goal-space policy trains only on its start states. Where the two
-        sets of states differ, the box can grow far past what level i reaches, and level
-        i+1 then asks for subgoals it cannot get. ``rows`` states are drawn from level
-        i+1's replay; the top level (nothing above it) and an empty replay give None.
+        Level i's box is level i+1's action space at whatever state level i+1 acts from.
+        Where the box is wrong there (too far out, say, at fast-moving states the
+        goal-space critic has seen little of), level i+1 asks for subgoals level i cannot
+        reach. ``rows`` states are drawn from level i+1's replay; the top level (nothing
+        above it) and an empty replay give None.
         """
         found: list[dict[str, float] | None] = []
         for level in range(self.cfg.k - 1):
