@@ -22,7 +22,7 @@ def test_point_mass_default_grows_its_goal_space_and_reaches_it():
 
 
 @pytest.mark.skipif(os.environ.get("MJX_EMP_SLOW") != "1",
-                    reason="about 11-12 minutes of CPU; run with MJX_EMP_SLOW=1")
+                    reason="about 13 minutes of CPU; run with MJX_EMP_SLOW=1")
 def test_two_levels_learn_a_larger_top_goal_space_than_one_for_the_same_env_steps():
     from mjx_emp.experiments.compare_levels import compare
 
