@@ -7,14 +7,13 @@ phase-1 agents with the CLI's own functions:
 - ``k2``: the point-mass-k2 preset (two levels, n = (10, 5): top-level skills of up to
   50 primitive actions);
 - ``k1-n50``: one level with n = 50 and k2's 8 goal-space iterations per epoch, the flat
-  agent with k2's skill horizon. The paper's
-  level comparisons match the top skill's length in primitive actions this way (e.g. Half
-  Cheetah Big: n = 200 against n = (20, 10)).
+  agent with k2's skill horizon. The paper's level comparisons match the top skill's
+  length in primitive actions this way (e.g. Half Cheetah Big: n = 200 against
+  n = (20, 10)).
 
 Then phase 2: ``point-mass-k1`` (2.4 x 2.4 region, inside k1's learned goal space) on k1,
 and the 8 x 8 and 16 x 16 regions (``point-mass-wide-*``, ``point-mass-wider-*``,
-3 attempts) on all three agents. Each phase-2
-policy is evaluated greedily on 400 goals before and after training, and the figures are
+3 attempts) on all three agents. Each phase-2 policy is evaluated greedily on 400 goals before and after training, and the figures are
 aggregated over seeds (mean and standard error).
 ``python -m mjx_emp.experiments.phase2_compare --seeds 0 1 2``.
 """
