@@ -13,8 +13,9 @@ phase-1 agents with the CLI's own functions:
 
 Then phase 2: ``point-mass-k1`` (2.4 x 2.4 region, inside k1's learned goal space) on k1,
 and the 8 x 8 and 16 x 16 regions (``point-mass-wide-*``, ``point-mass-wider-*``,
-3 attempts) on all three agents. Each phase-2 policy is evaluated greedily on 400 goals before and after training, and the figures are
-aggregated over seeds (mean and standard error).
+3 attempts) on all three agents. Each phase-2 policy is evaluated greedily on 400 goals
+before and after training, and the figures are aggregated over seeds (mean and standard
+error).
 ``python -m mjx_emp.experiments.phase2_compare --seeds 0 1 2``.
 """
 
