@@ -59,7 +59,7 @@ def run_rollout(cfg: RolloutExperiment) -> dict:
     jax.block_until_ready(stats)
     compile_s = time.perf_counter() - t0
 
-    totals = {"useful": 0, "steps": 0, "episodes": 0, "nan": 0}
+    totals = {"useful": 0, "steps": 0, "episodes": 0, "nan": 0, "flip": 0}
     reached = [0] * h.k
     finals = [0] * h.k
     elapsed = 0.0
@@ -72,6 +72,7 @@ def run_rollout(cfg: RolloutExperiment) -> dict:
         totals["steps"] += int(stats.primitive_steps)
         totals["episodes"] += int(stats.episodes_finished)
         totals["nan"] += int(stats.nan_resets)
+        totals["flip"] += int(stats.flip_resets)
         for level, tr in enumerate(transitions):
             reached[level] += int((tr.reached & tr.valid).sum())
             finals[level] += int((tr.final & tr.valid).sum())
@@ -89,6 +90,7 @@ def run_rollout(cfg: RolloutExperiment) -> dict:
         "goals_ended_per_level": finals,
         "goals_reached_per_level": reached,
         "nan_resets": totals["nan"],
+        "flip_resets": totals["flip"],
         "backend": jax.default_backend(),
     }
 
@@ -147,7 +149,7 @@ def evaluate(exp: EvalExperiment) -> dict:
         raise ConfigError(f"episodes: must be >= 1; got {exp.episodes}")
     import jax
 
-    from mjx_emp.evaluate import aggregate_phase2, aggregate_runs, phase1_figures
+    from mjx_emp.evaluate import COVERAGE_SKILLS, aggregate_agent, aggregate_phase2, aggregate_runs, phase1_figures
 
     runs = []
     for run_dir in exp.run_dirs:
@@ -163,7 +165,7 @@ def evaluate(exp: EvalExperiment) -> dict:
                 **phase2.evaluate(phase2_state, jax.random.key(exp.seed), exp.episodes),
             }
         runs.append(report)
-    report = {"runs": runs, "levels": aggregate_runs(runs)}
+    report = {"runs": runs, "levels": aggregate_runs(runs), **aggregate_agent(runs)}
     with_phase2 = [r["phase2"] for r in runs if "phase2" in r]
     if with_phase2:
         report["phase2"] = aggregate_phase2(with_phase2)
@@ -175,6 +177,10 @@ def evaluate(exp: EvalExperiment) -> dict:
     for row in report["levels"]:
         cells = [f"{row[name]['mean']:.3g} ± {row[name]['stderr']:.2g}" for name in ("volume", "success", "final_distance")]
         print(f"| {row['level']} | " + " | ".join(cells) + " |")
+    cover, area = report["coverage_cells"], report["volume_x_success"]
+    print(f"coverage ({COVERAGE_SKILLS} greedy top-level skills from the initial state, 1 m cells of goal space): "
+          f"{cover['mean']:.3g} ± {cover['stderr']:.2g} cells; top volume x greedy success "
+          f"{area['mean']:.3g} ± {area['stderr']:.2g}")
     if with_phase2:
         p2 = report["phase2"]
         first = with_phase2[0]

@@ -34,13 +34,19 @@ MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
 class EnvState:
     """State of one environment.
 
-    ``key`` drives the reset that follows a non-finite physics state;
-    ``nan_resets`` counts those resets over the environment's life.
+    ``key`` drives the reset that follows a non-finite physics state or a flipped torso;
+    ``nan_resets`` and ``flip_resets`` count those resets over the environment's life.
     """
 
     data: mjx.Data
     key: jax.Array
     nan_resets: jax.Array
+    flip_resets: jax.Array
+
+    @property
+    def resets(self) -> jax.Array:
+        """Resets of either kind: a step that raised this ended the episode it was in."""
+        return self.nan_resets + self.flip_resets
 
 
 @dataclasses.dataclass(frozen=True)
@@ -66,17 +72,24 @@ class DomainSpec:
     action_repeat: int
     goal_qpos: tuple[int, ...]
     caged: bool = False
+    torso_quat: int | None = None
+    """Where the free torso's quaternion starts in qpos, for robots reset when upside down."""
 
 
-# Control interval = timestep * action_repeat = 0.1 s in every domain. The paper's
-# Brax agents also used a coarse control step; at 0.1 s a primitive action moves the
-# point mass up to 0.2 (terminal speed 2 m/s). An Ant or Half Cheetah gait of 1-3 m/s
-# (estimated, not yet measured) would cover 0.1-0.3 per action, so an n=20 skill can
-# span a few metres.
+# Control intervals follow the paper's Brax systems: 0.1875 s per Ant action (Brax's 10
+# substeps; here 10 physics steps of 0.01875 s) and 0.15 s per Half Cheetah action (Brax
+# used 48 substeps for its position-based solver; MuJoCo is stable with 10 of 0.015 s).
+# The point mass, which the paper does not use, acts every 0.1 s (up to 0.2 m per action).
+# An Ant that ends upside down cannot right itself: it is reset to its home pose (Gym's
+# convention for an unhealthy Ant) and the episode it was in ends (``flip_resets``). A
+# flipped Half Cheetah can still run along x, its goal space, so it is never reset (as in
+# Gym and Brax).
+ANT_TORSO_QUAT = 3
 DOMAINS: dict[str, DomainSpec] = {
     "point_mass": DomainSpec("point_mass.xml", action_repeat=5, goal_qpos=(0, 1)),
-    "ant_field": DomainSpec("ant_field.xml", action_repeat=10, goal_qpos=(0, 1)),
-    "ant_cage": DomainSpec("ant_cage.xml", action_repeat=10, goal_qpos=(0, 1), caged=True),
+    "ant_field": DomainSpec("ant_field.xml", action_repeat=10, goal_qpos=(0, 1), torso_quat=ANT_TORSO_QUAT),
+    "ant_cage": DomainSpec("ant_cage.xml", action_repeat=10, goal_qpos=(0, 1), caged=True,
+                           torso_quat=ANT_TORSO_QUAT),
     "half_cheetah_field": DomainSpec("half_cheetah_field.xml", action_repeat=10, goal_qpos=(0,)),
     "half_cheetah_cage": DomainSpec(
         "half_cheetah_cage.xml", action_repeat=10, goal_qpos=(0,), caged=True
@@ -97,6 +110,7 @@ class Env:
     action_repeat: int
     goal_qpos: tuple[int, ...]
     cage: Cage | None
+    torso_quat: int | None = None
 
     @property
     def action_size(self) -> int:
@@ -132,7 +146,7 @@ class Env:
         torso_pos = jnp.asarray(torso_pos, dtype=self.template.qpos.dtype)
         qpos = jnp.asarray(self.home_qpos).at[jnp.asarray(self.goal_qpos)].set(torso_pos)
         data = self.template.replace(qpos=qpos)
-        return EnvState(data=data, key=key, nan_resets=jnp.zeros((), jnp.int32))
+        return EnvState(data=data, key=key, **_no_resets())
 
     def restore(self, key: jax.Array, obs: jax.Array) -> EnvState:
         """The state an observation describes: qpos, qvel and, in cages, open or closed walls.
@@ -145,13 +159,24 @@ class Env:
         data = self.template.replace(qpos=obs[:nq].astype(dtype), qvel=obs[nq : nq + nv].astype(dtype))
         if self.cage is not None:
             data = data.replace(mocap_pos=self._wall_positions(obs[-1] > 0.5))
-        return EnvState(data=data, key=key, nan_resets=jnp.zeros((), jnp.int32))
+        return EnvState(data=data, key=key, **_no_resets())
+
+    def upright(self, data: mjx.Data) -> jax.Array:
+        """False once the torso's up axis points below the horizon (tilted past 90 degrees).
+
+        Always True for robots without a free torso (point mass, Half Cheetah).
+        """
+        if self.torso_quat is None:
+            return jnp.ones((), bool)
+        w, x, y, z = (data.qpos[self.torso_quat + i] for i in range(4))
+        return w * w - x * x - y * y + z * z > 0.0  # z of the rotated up axis, times |q|^2
 
     def step(self, state: EnvState, action: jax.Array) -> EnvState:
         """Apply one primitive action (clipped to [-1, 1]) for ``action_repeat`` physics steps.
 
         A non-finite state after the physics resets the environment to its home pose
-        and increments ``nan_resets``, so one bad batch member never poisons the rest.
+        and increments ``nan_resets``, so one bad batch member never poisons the rest;
+        an Ant left upside down is reset the same way and counted in ``flip_resets``.
         """
         data = state.data.replace(ctrl=jnp.clip(action, -1.0, 1.0).astype(state.data.ctrl.dtype))
         data = jax.lax.fori_loop(
@@ -160,9 +185,14 @@ class Env:
         if self.cage is not None:
             data = self._press_button(data)
         finite = jnp.isfinite(data.qpos).all() & jnp.isfinite(data.qvel).all()
+        flipped = finite & ~self.upright(data)
         key, reset_key = jax.random.split(state.key)
-        data = tree_where(finite, data, self.reset(reset_key).data)
-        return EnvState(data=data, key=key, nan_resets=state.nan_resets + (~finite).astype(jnp.int32))
+        data = tree_where(finite & ~flipped, data, self.reset(reset_key).data)
+        return EnvState(
+            data=data, key=key,
+            nan_resets=state.nan_resets + (~finite).astype(jnp.int32),
+            flip_resets=state.flip_resets + flipped.astype(jnp.int32),
+        )
 
     def goal_of(self, state: EnvState) -> jax.Array:
         """h(s): the torso coordinates that make up the goal space."""
@@ -229,6 +259,12 @@ def tree_where(condition: jax.Array, on_true, on_false):
     return jax.tree.map(pick, on_true, on_false)
 
 
+def _no_resets() -> dict[str, jax.Array]:
+    """Zeroed reset counters of a fresh environment state."""
+    zero = jnp.zeros((), jnp.int32)
+    return {"nan_resets": zero, "flip_resets": zero}
+
+
 def _home_qpos(m: mujoco.MjModel) -> np.ndarray:
     key_id = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_KEY, "home")
     return np.array(m.key_qpos[key_id] if key_id >= 0 else m.qpos0, dtype=np.float32)
@@ -267,4 +303,5 @@ def make_env(name: str) -> Env:
         action_repeat=spec.action_repeat,
         goal_qpos=spec.goal_qpos,
         cage=_make_cage(m, spec) if spec.caged else None,
+        torso_quat=spec.torso_quat,
     )

@@ -36,30 +36,53 @@ def running_min_distance(distance: jax.Array, valid: jax.Array, ended: jax.Array
     return jax.lax.scan(step, running, (distance, valid, ended))
 
 
+def coverage_cells(positions: np.ndarray, mask: np.ndarray, cell: float = 1.0) -> int:
+    """METRA's state coverage: distinct ``cell``-sized cells of goal space that any path visits.
+
+    ``positions`` [..., d] are goal-space points (x, y for Ant and point mass, x for Half
+    Cheetah) and ``mask`` [...] marks the points that count. Park et al. (METRA, 2024) count
+    1 x 1 m (x, y) cells visited by 48 skills on Ant; the same count in 1-D is 1 m bins of x.
+    """
+    points = np.asarray(positions)[np.asarray(mask, bool)]
+    if points.size == 0:
+        return 0
+    return int(np.unique(np.floor(points / cell).astype(np.int64), axis=0).shape[0])
+
+
 def mean_and_stderr(values: Sequence[float]) -> dict[str, float]:
-    """Mean and standard error of the mean (sample std / sqrt(count)); stderr is 0 for one value."""
+    """Mean, sample standard deviation (the paper's error bars) and standard error of the mean.
+
+    std and stderr (std / sqrt(count)) are 0 for one value.
+    """
     x = np.asarray(values, float)
     if x.size == 0:
         raise ValueError("mean_and_stderr needs at least one value")
-    stderr = float(x.std(ddof=1) / math.sqrt(x.size)) if x.size > 1 else 0.0
-    return {"mean": float(x.mean()), "stderr": stderr, "count": int(x.size)}
+    std = float(x.std(ddof=1)) if x.size > 1 else 0.0
+    return {"mean": float(x.mean()), "std": std, "stderr": std / math.sqrt(x.size), "count": int(x.size)}
+
+
+COVERAGE_SKILLS = 48
+"""Skills per coverage count, as in METRA's Ant figures."""
 
 
 def phase1_figures(trainer, state, key, episodes: int) -> dict:
-    """Per level: the goal-space box at the initial state and greedy goal-conditioned results.
+    """Per level: the goal-space box at the initial state and greedy goal-conditioned results;
+    for the agent: METRA's coverage and the top box's volume times its greedy success.
 
     Goals come from each level's own (noise-free) goal space, episodes start from its
     start-state buffer; at least ``episodes`` episodes per level (whole rounds of
-    ``num_envs``).
+    ``num_envs``). Coverage counts the 1 m cells of goal space visited by
+    :data:`COVERAGE_SKILLS` greedy top-level skills from the initial state.
     """
-    import jax
-
     rounds = max(1, math.ceil(episodes / trainer.cfg.num_envs))
     levels = []
     for level, box in enumerate(trainer.goal_spaces(state)):
         result = trainer.evaluate(state, level, jax.random.fold_in(key, level), rounds)
         levels.append({"level": level, **box, **result, "episodes": rounds * trainer.cfg.num_envs})
-    return {"epoch": int(state.epoch), "env_steps": float(state.env_steps), "levels": levels}
+    paths = trainer.skill_paths(state, jax.random.fold_in(key, len(levels)), COVERAGE_SKILLS)
+    top = levels[-1]
+    return {"epoch": int(state.epoch), "env_steps": float(state.env_steps), "levels": levels,
+            "coverage_cells": coverage_cells(*paths), "volume_x_success": top["volume"] * top["success"]}
 
 
 def aggregate_runs(reports: Sequence[dict]) -> list[dict]:
@@ -74,6 +97,14 @@ def aggregate_runs(reports: Sequence[dict]) -> list[dict]:
                             for name in ("volume", "success", "final_distance")}}
         for level in range(k)
     ]
+
+
+def aggregate_agent(reports: Sequence[dict]) -> dict:
+    """Mean and standard error over runs (seeds) of the agent-wide figures: coverage cells and
+    the top box's volume times greedy success."""
+    if not reports:
+        raise ValueError("aggregate_agent needs at least one report")
+    return {name: mean_and_stderr([r[name] for r in reports]) for name in ("coverage_cells", "volume_x_success")}
 
 
 def aggregate_phase2(reports: Sequence[dict]) -> dict:

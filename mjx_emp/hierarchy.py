@@ -9,7 +9,8 @@ and the state and action with which its current action was issued. One scan step
 
 1. level 0 acts, physics advances one primitive action;
 2. bottom-up, every level whose action just completed counts it and checks its goal;
-   a level finishes when it reaches its goal, runs out of actions, or physics broke;
+   a level finishes when it reaches its goal, runs out of actions, or the environment
+   was reset (physics broke, or the Ant flipped);
 3. an environment whose root level finished starts a new episode at once;
 4. top-down, every level whose child finished issues the child's next subgoal.
 
@@ -136,6 +137,7 @@ class RolloutStats:
     useful_steps: jax.Array
     episodes_finished: jax.Array
     nan_resets: jax.Array
+    flip_resets: jax.Array
     decisions: tuple[jax.Array, ...]
 
 
@@ -307,7 +309,7 @@ def _scan_step(h, params, start, start_params, state: RolloutState, _):
     action = jax.vmap(h.policies[0], in_axes=(None, 0, 0, 0))(params[0], obs, goals[0], keys[0])
     issued_obs[0], issued_action[0] = obs, action
     env_state = jax.vmap(env.step)(state.env, action)
-    broke = env_state.nan_resets > state.env.nan_resets
+    broke = env_state.resets > state.env.resets
     next_obs = jax.vmap(env.observe)(env_state)
     pos = jax.vmap(env.goal_of)(env_state)
 
@@ -344,7 +346,7 @@ def _scan_step(h, params, start, start_params, state: RolloutState, _):
         fresh, fresh_goal, fresh_info = jax.vmap(start, in_axes=(None, 0))(
             start_params, jax.random.split(start_key, batch)
         )
-        fresh = fresh.replace(nan_resets=env_state.nan_resets)
+        fresh = fresh.replace(nan_resets=env_state.nan_resets, flip_resets=env_state.flip_resets)
         goals = tuple(
             jnp.where((episode_over & (root == i))[:, None], fresh_goal, g)
             for i, g in enumerate(goals)
@@ -391,7 +393,7 @@ def rollout(
     keep one ``Hierarchy`` and one ``start`` function object per agent: a freshly built
     closure compiles anew.
     """
-    nan_before = state.env.nan_resets.sum()
+    nan_before, flips_before = state.env.nan_resets.sum(), state.env.flip_resets.sum()
 
     def body(carry, x):
         return _scan_step(h, params, start, start_params, carry, x)
@@ -406,6 +408,7 @@ def rollout(
         useful_steps=transitions[0].valid.sum(dtype=jnp.int32),
         episodes_finished=finished.sum(dtype=jnp.int32),
         nan_resets=state.env.nan_resets.sum() - nan_before,
+        flip_resets=state.env.flip_resets.sum() - flips_before,
         decisions=tuple(d.sum(dtype=jnp.int32) for d in decisions),
     )
     return state, transitions, episodes, stats

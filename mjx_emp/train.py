@@ -147,6 +147,7 @@ class ItemStats:
     final_distance: jax.Array
     critic_loss: jax.Array
     actor_loss: jax.Array
+    flip_resets: jax.Array
 
 
 def epoch_schedule(cfg: TrainConfig) -> np.ndarray:
@@ -378,11 +379,12 @@ class Trainer:
                 totals[2] + first_episode.sum(),
                 totals[3] + (first_episode & episodes.reached).sum(),
                 totals[4] + jnp.where(first_episode, distance, 0.0).sum(),
+                totals[5] + stats.flip_resets,
             )
             return rs, (replay, gs_replay, starts), chunks + 1, totals
 
         carry = (first, (state.replay, state.gs_replay, state.starts), jnp.zeros((), jnp.int32),
-                 (zero, jnp.int32(0), jnp.int32(0), jnp.int32(0), zero))
+                 (zero, jnp.int32(0), jnp.int32(0), jnp.int32(0), zero, jnp.int32(0)))
         rs, (replay, gs_replay, starts), _, totals = jax.lax.while_loop(unfinished, chunk, carry)
         chain = jax.lax.cond(is_chain, lambda: rs, lambda: state.chain)
         state = state.replace(
@@ -390,7 +392,7 @@ class Trainer:
             env_steps=state.env_steps + totals[0],
         )
         episodes = jnp.maximum(totals[2], 1)
-        return state, (totals[0], totals[1], totals[2], totals[3] / episodes, totals[4] / episodes)
+        return state, (totals[0], totals[1], totals[2], totals[3] / episodes, totals[4] / episodes, totals[5])
 
     def _gs_row(self, level: int, episodes: EpisodeEnd) -> GSRow:
         """Goal-space samples from finished episodes, rewarded with the level's sigma_gs."""
@@ -486,7 +488,7 @@ class Trainer:
         def item(state: TrainState, schedule_item):
             root, mode = schedule_item[0], schedule_item[1]
             key, collect_key, update_key = jax.random.split(state.key, 3)
-            state, (steps, transitions, episodes, reached, distance) = self._collect(
+            state, (steps, transitions, episodes, reached, distance, flips) = self._collect(
                 state.replace(key=key), root, mode, collect_key
             )
             branch = jnp.select([mode == MODE_GC, mode == MODE_GS], [1 + 2 * root, 2 + 2 * root], 0)
@@ -496,6 +498,7 @@ class Trainer:
             stats = ItemStats(
                 root=root, mode=mode, env_steps=steps, transitions=transitions, episodes=episodes,
                 reached=reached, final_distance=distance, critic_loss=losses[0], actor_loss=losses[1],
+                flip_resets=flips,
             )
             return state.replace(gc=gcs, gs=gss), stats
 
@@ -517,11 +520,43 @@ class Trainer:
 
     def _evaluate(self, state: TrainState, level: jax.Array, key: jax.Array, rounds: int):
         def one(_, round_key):
-            _, (_, _, _, reached, distance) = self._collect(state, level, jnp.int32(MODE_EVAL), round_key)
+            _, (_, _, _, reached, distance, _) = self._collect(state, level, jnp.int32(MODE_EVAL), round_key)
             return None, (reached, distance)
 
         _, (reached, distance) = jax.lax.scan(one, None, jax.random.split(key, rounds))
         return reached.mean(), distance.mean()
+
+    def skill_paths(self, state: TrainState, key: jax.Array, skills: int = 48) -> tuple[np.ndarray, np.ndarray]:
+        """h(s) along ``skills`` greedy top-level skills from the initial state.
+
+        Each skill's goal is drawn from the top goal space at the initial state (no noise)
+        and pursued greedily by every level. Returns positions [T + 1, skills, d] (the
+        start, then every primitive step) and a mask [T + 1, skills] that is True up to and
+        including the step that ended each skill (its first root episode; steps of later
+        episodes and a flip reset's aftermath are masked out). METRA's coverage count and
+        the README's plots read these paths.
+        """
+        positions, mask = _jit_skill_paths(self, state, key, skills)
+        return np.asarray(positions), np.asarray(mask)
+
+    def _skill_paths(self, state: TrainState, key: jax.Array, skills: int):
+        top = self.cfg.k - 1
+        initial = jnp.asarray(self.initial_obs)
+        only_initial = replay_insert(replay_init(initial, 1), initial[None], jnp.ones(1, bool))
+        probe = state.replace(starts=state.starts[:top] + (only_initial,))
+        params, start_params = self.rollout_inputs(probe, jnp.int32(top), jnp.int32(MODE_EVAL))
+        rs = init_rollout(self.hierarchy, params, self.start, start_params, key, skills, top)
+        steps = int(np.prod(self.cfg.n))
+        _, transitions, _, _ = rollout(self.hierarchy, params, self.start, start_params, rs, steps)
+        ended = transitions[top].final
+        ended_before = jnp.cumsum(ended, axis=0) - ended.astype(jnp.int32)
+        steps_mask = (ended_before == 0) & transitions[0].valid
+        start = self.env.goal_of_obs(initial)
+        positions = jnp.concatenate([
+            jnp.broadcast_to(start, (1, skills, start.shape[-1])),
+            self.env.goal_of_obs(transitions[0].next_obs),
+        ])
+        return positions, jnp.concatenate([jnp.ones((1, skills), bool), steps_mask])
 
     def goal_spaces(self, state: TrainState, obs: jax.Array | None = None) -> list[dict[str, list[float]]]:
         """Each level's goal-space box at ``obs`` (default: the initial state), as plain floats."""
@@ -582,7 +617,8 @@ class Trainer:
                 "transitions": pick(MODE_GC, "transitions", np.sum),
                 "box_where_used": where_used[level],
             })
-        return {**epoch_header(state, float(s.env_steps.sum()), seconds), "levels": levels}
+        header = epoch_header(state, float(s.env_steps.sum()), seconds)
+        return {**header, "flip_resets": int(s.flip_resets.sum()), "levels": levels}
 
     def divergence(self, state: TrainState, stats: ItemStats) -> str | None:
         """Why this epoch's result must not be kept (a non-finite loss or parameter), or None.
@@ -684,6 +720,7 @@ def gc_row(t: Transition) -> GCRow:
 _jit_init = jax.jit(Trainer._init, static_argnums=0)
 _jit_train_epoch = jax.jit(Trainer._train_epoch, static_argnums=0, donate_argnums=1)
 _jit_evaluate = jax.jit(Trainer._evaluate, static_argnums=(0, 4))
+_jit_skill_paths = jax.jit(Trainer._skill_paths, static_argnums=(0, 3))
 
 
 def epoch_header(state: Any, epoch_env_steps: float, seconds: float) -> dict[str, Any]:

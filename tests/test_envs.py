@@ -80,6 +80,39 @@ def test_nan_guard_is_per_batch_member():
     assert float(stepped.data.qpos[0, 0]) > 0.0  # healthy members still moved
 
 
+def upside_down(env, state):
+    """``state`` with the torso rotated half a turn about x (a free torso) or about y (pitch)."""
+    qpos = state.data.qpos
+    if env.torso_quat is not None:
+        qpos = qpos.at[env.torso_quat : env.torso_quat + 4].set(jnp.array([0.0, 1.0, 0.0, 0.0]))
+        qpos = qpos.at[2].set(1.0)
+    else:
+        qpos = qpos.at[2].set(jnp.pi)
+    return state.replace(data=state.data.replace(qpos=qpos))
+
+
+def test_an_ant_upside_down_is_reset_home_and_counted_and_an_upright_one_is_not():
+    env = make_env("ant_field")
+    step = jax.jit(env.step)
+    state = env.reset_to(jax.random.key(0), jnp.array([3.0, -1.0]))
+    upright = step(state, jnp.zeros(env.action_size))
+    assert int(upright.flip_resets) == 0 and int(upright.resets) == 0
+    flipped = step(upside_down(env, state), jnp.zeros(env.action_size))
+    assert int(flipped.flip_resets) == 1 and int(flipped.nan_resets) == 0 and int(flipped.resets) == 1
+    np.testing.assert_allclose(flipped.data.qpos, env.home_qpos, atol=1e-6)  # home pose at the origin
+    # Tilted by 60 degrees about x it is still upright.
+    tilted = state.data.qpos.at[3:7].set(jnp.array([np.cos(np.pi / 6), np.sin(np.pi / 6), 0.0, 0.0]))
+    assert bool(env.upright(state.data.replace(qpos=tilted)))
+
+
+def test_a_half_cheetah_on_its_back_keeps_running():
+    env = make_env("half_cheetah_field")
+    state = upside_down(env, env.reset_to(jax.random.key(0), jnp.array([2.0])))
+    stepped = jax.jit(env.step)(state, jnp.ones(env.action_size))
+    assert int(stepped.resets) == 0
+    assert abs(float(env.goal_of(stepped)[0]) - 2.0) < 1.0  # not sent home to x = 0
+
+
 def test_unknown_env_names_the_allowed_values():
     with pytest.raises(ValueError, match="point_mass"):
         make_env("pointmass")

@@ -8,7 +8,13 @@ import math
 import numpy as np
 import pytest
 
-from mjx_emp.evaluate import aggregate_phase2, aggregate_runs, mean_and_stderr, running_min_distance
+from mjx_emp.evaluate import (
+    aggregate_phase2,
+    aggregate_runs,
+    coverage_cells,
+    mean_and_stderr,
+    running_min_distance,
+)
 from mjx_emp import cli
 from mjx_emp.plots import plot_goal_space_boxes, plot_goal_space_growth, plot_phase2_curves
 
@@ -53,11 +59,28 @@ def test_min_distance_ignores_steps_that_do_not_count():
     assert np.asarray(per_step)[1, 0] == 5.0 and np.isinf(np.asarray(per_step)[1, 1])
 
 
+def test_coverage_counts_distinct_metre_cells_of_the_points_that_count():
+    # Two skills in (x, y): one walks 2.5 m along x (cells x = 0, 1, 2 at y = 0), the other
+    # steps into the negative quadrant (cell (-1, -1)) and then leaves its episode (masked).
+    paths = np.array([
+        [[0.2, 0.3], [0.2, 0.3]],
+        [[1.1, 0.4], [-0.5, -0.2]],
+        [[2.7, 0.9], [30.0, 30.0]],
+    ])
+    mask = np.array([[True, True], [True, True], [True, False]])
+    assert coverage_cells(paths, mask) == 4  # (0,0) (1,0) (2,0) (-1,-1); (30,30) does not count
+    assert coverage_cells(paths, mask, cell=2.0) == 3  # (0,0) (1,0) (-1,-1) in 2 m cells
+    # 1-D goal space (Half Cheetah x): 1 m bins.
+    assert coverage_cells(np.array([[0.5], [1.5], [1.9], [-0.1]]), np.ones(4, bool)) == 3
+    assert coverage_cells(paths, np.zeros((3, 2), bool)) == 0
+
+
 def test_mean_and_standard_error_over_seeds():
     result = mean_and_stderr([1.0, 2.0, 3.0, 6.0])
     assert result["mean"] == 3.0 and result["count"] == 4
-    assert result["stderr"] == pytest.approx(np.std([1, 2, 3, 6], ddof=1) / 2)
-    assert mean_and_stderr([2.5]) == {"mean": 2.5, "stderr": 0.0, "count": 1}
+    assert result["std"] == pytest.approx(np.std([1, 2, 3, 6], ddof=1))
+    assert result["stderr"] == pytest.approx(result["std"] / 2)
+    assert mean_and_stderr([2.5]) == {"mean": 2.5, "std": 0.0, "stderr": 0.0, "count": 1}
 
 
 def test_goal_space_growth_plot_is_a_png_image(tmp_path):

@@ -127,6 +127,10 @@ def test_eval_reports_every_level_and_phase2_and_aggregates_runs_as_seeds(traine
     assert 0.0 <= level["success"]["mean"] <= 1.0 and level["final_distance"]["mean"] >= 0.0
     assert report["runs"][0]["levels"][0]["episodes"] == 16
     assert "| 0 |" in result.stdout
+    first = report["runs"][0]
+    assert first["coverage_cells"] >= 1 and report["coverage_cells"]["count"] == 2
+    assert first["volume_x_success"] == pytest.approx(first["levels"][0]["volume"] * first["levels"][0]["success"])
+    assert f"coverage (48 greedy top-level skills" in result.stdout
     phase2 = report["runs"][0]["phase2"]
     assert phase2["episodes"] == 16 and phase2["eps"] == 0.6 and phase2["min_distance"] >= 0.0
     assert report["phase2"]["min_distance"]["count"] == 2 and report["phase2"]["min_distance"]["stderr"] == 0.0

@@ -122,10 +122,23 @@ def test_epoch_metrics_report_every_level():
         assert level["volume"] == pytest.approx(np.prod(2 * np.asarray(level["half_width"])), rel=1e-4)
         assert 0.0 <= level["success"] <= 1.0
         assert np.isfinite(level["gc_critic_loss"]) and np.isfinite(level["gs_critic_loss"])
-    assert metrics["env_steps_per_s"] > 0
+    assert metrics["env_steps_per_s"] > 0 and metrics["flip_resets"] == 0  # a point mass never flips
     used = metrics["levels"][0]["box_where_used"]
     assert used is not None and metrics["levels"][1]["box_where_used"] is None
     assert 0 < used["mean_half_width"] <= used["max_half_width"] and np.isfinite(used["max_abs_shift"])
+
+
+def test_skill_paths_start_at_the_initial_state_and_stop_with_each_first_skill():
+    trainer, _, state, _, _ = tiny_after_two_epochs()
+    positions, mask = trainer.skill_paths(state, jax.random.key(4), skills=5)
+    steps = int(np.prod(TINY.n))
+    assert positions.shape == (steps + 1, 5, 2) and mask.shape == (steps + 1, 5)
+    np.testing.assert_allclose(positions[0], np.broadcast_to(trainer.env.home_goal(), (5, 2)))
+    assert mask[0].all()
+    # Once a skill has ended, none of its later steps count (the mask never turns back on).
+    assert (np.diff(mask.astype(int), axis=0) <= 0).all()
+    # The agent moved: the counted points are not all the start.
+    assert np.abs(positions[mask] - positions[0, 0]).max() > 1e-3
 
 
 def test_box_where_used_reads_level_zero_box_at_level_one_states():
