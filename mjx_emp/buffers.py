@@ -62,6 +62,14 @@ def replay_insert(buffer: ReplayBuffer, rows: Rows, valid: jax.Array) -> ReplayB
     )
 
 
+def replay_clear_where(buffer: ReplayBuffer, clear: jax.Array) -> ReplayBuffer:
+    """``buffer`` emptied where ``clear`` (a traced bool), unchanged otherwise; the rows stay
+    allocated and are overwritten by the next inserts."""
+    zero = jnp.zeros((), jnp.int32)
+    return buffer.replace(insert_pos=jnp.where(clear, zero, buffer.insert_pos),
+                          size=jnp.where(clear, zero, buffer.size))
+
+
 def replay_sample(buffer: ReplayBuffer, key: jax.Array, batch_size: int) -> Rows:
     """``batch_size`` rows drawn uniformly (with replacement) from the filled part.
 

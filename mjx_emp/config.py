@@ -76,6 +76,11 @@ class TrainConfig:
     """Goal-space (s0, noise, a, r) tuples kept per level."""
     start_capacity: int = 8_192
     """Start states kept per level."""
+    fresh_replay: bool = False
+    """The paper's Algorithms 2 and 3 literally: each goal-conditioned or goal-space
+    iteration starts from an empty buffer D and learns from its own collection only.
+    False keeps persistent ring buffers of the capacities above (the default; README,
+    "Differences from the paper")."""
     start_chain: int = 10
     """Top-level skills executed in a row from the initial state when filling start buffers."""
     start_chunks: int = 2

@@ -74,6 +74,9 @@ class DomainSpec:
     caged: bool = False
     torso_quat: int | None = None
     """Where the free torso's quaternion starts in qpos, for robots reset when upside down."""
+    standardize: bool = False
+    """Standardise network features by a random-action rollout's statistics (see
+    :func:`random_action_feature_stats`)."""
 
 
 # Control intervals follow the paper's Brax systems: 0.1875 s per Ant action (Brax's 10
@@ -87,12 +90,13 @@ class DomainSpec:
 ANT_TORSO_QUAT = 3
 DOMAINS: dict[str, DomainSpec] = {
     "point_mass": DomainSpec("point_mass.xml", action_repeat=5, goal_qpos=(0, 1)),
-    "ant_field": DomainSpec("ant_field.xml", action_repeat=10, goal_qpos=(0, 1), torso_quat=ANT_TORSO_QUAT),
+    "ant_field": DomainSpec("ant_field.xml", action_repeat=10, goal_qpos=(0, 1), torso_quat=ANT_TORSO_QUAT,
+                            standardize=True),
     "ant_cage": DomainSpec("ant_cage.xml", action_repeat=10, goal_qpos=(0, 1), caged=True,
-                           torso_quat=ANT_TORSO_QUAT),
-    "half_cheetah_field": DomainSpec("half_cheetah_field.xml", action_repeat=10, goal_qpos=(0,)),
+                           torso_quat=ANT_TORSO_QUAT, standardize=True),
+    "half_cheetah_field": DomainSpec("half_cheetah_field.xml", action_repeat=10, goal_qpos=(0,), standardize=True),
     "half_cheetah_cage": DomainSpec(
-        "half_cheetah_cage.xml", action_repeat=10, goal_qpos=(0,), caged=True
+        "half_cheetah_cage.xml", action_repeat=10, goal_qpos=(0,), caged=True, standardize=True
     ),
 }
 
@@ -111,6 +115,8 @@ class Env:
     goal_qpos: tuple[int, ...]
     cage: Cage | None
     torso_quat: int | None = None
+    feature_mean: np.ndarray | None = None
+    feature_std: np.ndarray | None = None
 
     @property
     def action_size(self) -> int:
@@ -211,11 +217,17 @@ class Env:
         On an open field nothing depends on where the torso is, so h(s) is dropped and
         every network is translation invariant: skills learnt near the start transfer to
         start states far away. In a cage the position matters (walls, button) and stays.
+        On the robots each feature is then standardised (fixed statistics, clipped to
+        +-10): their joint speeds reach tens of rad/s beside quaternion entries below 1.
         """
-        if self.cage is not None:
-            return obs
-        keep = np.setdiff1d(np.arange(obs.shape[-1]), np.asarray(self.goal_qpos))
-        return obs[..., keep]
+        raw = obs if self.cage is not None else obs[..., self.feature_index(obs.shape[-1])]
+        if self.feature_mean is None:
+            return raw
+        return jnp.clip((raw - self.feature_mean) / self.feature_std, -10.0, 10.0)
+
+    def feature_index(self, obs_size: int) -> np.ndarray:
+        """Indices of an observation that an open-field network sees (all but h(s))."""
+        return np.setdiff1d(np.arange(obs_size), np.asarray(self.goal_qpos))
 
     @property
     def feature_size(self) -> int:
@@ -265,6 +277,28 @@ def _no_resets() -> dict[str, jax.Array]:
     return {"nan_resets": zero, "flip_resets": zero}
 
 
+def random_action_feature_stats(env: Env, envs: int = 16, actions: int = 100, seed: int = 0):
+    """Mean and std of ``env``'s raw features over uniform random actions from the home pose.
+
+    Run in MuJoCo C (a fraction of a second), so building an environment needs no JAX
+    compilation. Constant features keep a std of 1.
+    """
+    m = env.mj_model
+    rng = np.random.default_rng(seed)
+    rows = []
+    for _ in range(envs):
+        d = mujoco.MjData(m)
+        d.qpos[:] = env.home_qpos
+        for _ in range(actions):
+            d.ctrl[:] = rng.uniform(-1.0, 1.0, m.nu)
+            for _ in range(env.action_repeat):
+                mujoco.mj_step(m, d)
+            rows.append(np.concatenate([d.qpos, d.qvel, [0.0] if env.cage else []]))
+    raw = np.asarray(env.features(np.asarray(rows, np.float32)))
+    std = raw.std(axis=0)
+    return raw.mean(axis=0).astype(np.float32), np.where(std < 1e-6, 1.0, std).astype(np.float32)
+
+
 def _home_qpos(m: mujoco.MjModel) -> np.ndarray:
     key_id = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_KEY, "home")
     return np.array(m.key_qpos[key_id] if key_id >= 0 else m.qpos0, dtype=np.float32)
@@ -293,7 +327,7 @@ def make_env(name: str) -> Env:
     mujoco.mj_forward(m, d)
     model = mjx.put_model(m, impl="jax")
     template = mjx.put_data(m, d, impl="jax")
-    return Env(
+    env = Env(
         name=name,
         mj_model=m,
         model=model,
@@ -305,3 +339,7 @@ def make_env(name: str) -> Env:
         cage=_make_cage(m, spec) if spec.caged else None,
         torso_quat=spec.torso_quat,
     )
+    if spec.standardize:
+        mean, std = random_action_feature_stats(env)
+        env = dataclasses.replace(env, feature_mean=mean, feature_std=std)
+    return env

@@ -27,7 +27,14 @@ import optax
 from flax import struct
 
 from mjx_emp import gce
-from mjx_emp.buffers import ReplayBuffer, flatten_rows, replay_init, replay_insert, replay_sample
+from mjx_emp.buffers import (
+    ReplayBuffer,
+    flatten_rows,
+    replay_clear_where,
+    replay_init,
+    replay_insert,
+    replay_sample,
+)
 from mjx_emp.config import TrainConfig, check_train_config
 from mjx_emp.envs import Env, make_env
 from mjx_emp.hierarchy import (
@@ -328,7 +335,8 @@ class Trainer:
         """Run the agent rooted at ``root`` and file what it saw into the right buffers.
 
         GC: every valid root transition goes to the level's replay. GS: every finished root
-        episode goes to the goal-space replay. EVAL: nothing is stored (success and distance
+        episode goes to the goal-space replay. With ``fresh_replay`` the buffer an item fills
+        is emptied first (the paper's fresh D per call). EVAL: nothing is stored (success and distance
         are read from each environment's first episode in every mode). STARTS:
         continues the greedy chain; the state each level got a new goal in is a start state.
         """
@@ -383,7 +391,11 @@ class Trainer:
             )
             return rs, (replay, gs_replay, starts), chunks + 1, totals
 
-        carry = (first, (state.replay, state.gs_replay, state.starts), jnp.zeros((), jnp.int32),
+        replay, gs_replay = state.replay, state.gs_replay
+        if cfg.fresh_replay:
+            replay = tuple(replay_clear_where(b, (root == i) & (mode == MODE_GC)) for i, b in enumerate(replay))
+            gs_replay = tuple(replay_clear_where(b, (root == i) & (mode == MODE_GS)) for i, b in enumerate(gs_replay))
+        carry = (first, (replay, gs_replay, state.starts), jnp.zeros((), jnp.int32),
                  (zero, jnp.int32(0), jnp.int32(0), jnp.int32(0), zero, jnp.int32(0)))
         rs, (replay, gs_replay, starts), _, totals = jax.lax.while_loop(unfinished, chunk, carry)
         chain = jax.lax.cond(is_chain, lambda: rs, lambda: state.chain)

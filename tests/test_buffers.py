@@ -4,7 +4,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjx_emp.buffers import flatten_rows, replay_init, replay_insert, replay_sample
+from mjx_emp.buffers import flatten_rows, replay_clear_where, replay_init, replay_insert, replay_sample
 
 insert = jax.jit(replay_insert)
 
@@ -25,6 +25,17 @@ def test_only_valid_rows_are_inserted_in_order():
     np.testing.assert_array_equal(buffer.data["x"][:3], [1, 3, 5])
     np.testing.assert_array_equal(buffer.data["pair"][:3, 1], [-1, -3, -5])
     np.testing.assert_array_equal(buffer.data["x"][3:], 0)
+
+
+def test_clear_where_empties_only_when_asked_and_the_next_insert_starts_over():
+    buffer = insert(replay_init(example(), capacity=8), rows([1, 2, 3]), jnp.ones(3, bool))
+    kept = replay_clear_where(buffer, jnp.bool_(False))
+    assert int(kept.size) == 3 and int(kept.insert_pos) == 3
+    cleared = replay_clear_where(buffer, jnp.bool_(True))
+    assert int(cleared.size) == 0 and int(cleared.insert_pos) == 0
+    refilled = insert(cleared, rows([7]), jnp.ones(1, bool))
+    assert int(refilled.size) == 1
+    np.testing.assert_array_equal(replay_sample(refilled, jax.random.key(0), 4)["x"], [7, 7, 7, 7])
 
 
 def test_ring_wraps_and_overwrites_oldest():

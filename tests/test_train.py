@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import jax
@@ -112,6 +113,18 @@ def test_two_epochs_fill_buffers_learn_and_do_not_recompile():
     assert np.all(s.episodes[s.mode != MODE_STARTS] >= TINY.num_envs)
     assert np.all(s.env_steps > 0)
     assert float(state.env_steps) == pytest.approx(float(np.sum(first.env_steps) + np.sum(s.env_steps)))
+
+
+def test_fresh_replay_keeps_only_each_iterations_own_collection():
+    # The paper's Algorithm 2 starts every call with an empty D: after an epoch, each
+    # level's replay holds exactly the transitions of its last goal-conditioned iteration.
+    trainer = Trainer(dataclasses.replace(TINY, fresh_replay=True))
+    state, stats = trainer.train_epoch(trainer.init())
+    s = jax.tree.map(np.asarray, stats)
+    for level in range(TINY.k):
+        gc_items = np.flatnonzero((s.root == level) & (s.mode == MODE_GC))
+        assert int(state.replay[level].size) == int(s.transitions[gc_items[-1]])
+        assert int(s.transitions[gc_items].sum()) > int(state.replay[level].size)
 
 
 def test_epoch_metrics_report_every_level():
