@@ -97,6 +97,15 @@ class TrainConfig:
     """Adam learning rate of the goal-space critics."""
     gamma: float = 0.95
     """Discount of the goal-conditioned critics (0 once the goal is reached)."""
+    relabel: float = 0.0
+    """Fraction of every goal-conditioned minibatch whose goal offset is swapped for another
+    row's (goal = h(s) + that row's goal - h(s)), with reached recomputed. The reward
+    depends only on h(s') and the goal, so any goal makes a valid transition; 0 is the
+    paper's Algorithm 2."""
+    critics: int = 1
+    """Goal-conditioned critics per level. 1 is the paper's DDPG; 2 is TD3's clipped
+    double-Q (Fujimoto et al. 2018): two critics, bootstrapped targets from the smaller
+    of the two target critics, the actor ascending their mean."""
     tau: float = 0.01
     """Polyak rate of the goal-conditioned target networks."""
     action_noise: float = 0.2
@@ -115,7 +124,7 @@ class TrainConfig:
 
 
 _PER_LEVEL = ("n", "sigma_gc", "sigma_gs", "eps", "init_half_width", "max_half_width")
-_POSITIVE = ("epochs", "num_envs", "chunk_steps", "gc_iterations", "gc_grad_steps",
+_POSITIVE = ("epochs", "num_envs", "chunk_steps", "gc_iterations", "gc_grad_steps", "critics",
              "gs_iterations", "gs_grad_steps", "batch_size", "replay_capacity",
              "gs_replay_capacity", "start_capacity", "start_chain", "start_chunks")
 
@@ -144,6 +153,8 @@ def check_train_config(cfg: TrainConfig) -> None:
         raise ConfigError(f"eval_iterations: must be >= 0; got {cfg.eval_iterations}")
     _check_learning(cfg, ("actor_lr", "critic_lr", "gs_actor_lr", "gs_critic_lr"),
                     ("action_noise", "goal_noise", "gs_noise"))
+    if not 0 <= cfg.relabel <= 1:
+        raise ConfigError(f"relabel: a fraction in [0, 1]; got {cfg.relabel}")
 
 
 def _check_counts(cfg, names: tuple[str, ...]) -> None:

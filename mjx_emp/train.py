@@ -229,8 +229,10 @@ class Trainer:
         return gce.sample_goal(gce.goal_noise(key, (self.env.goal_size,)), action)
 
     def q_value(self, params: Params, obs: jax.Array, goal: jax.Array, action: jax.Array) -> jax.Array:
-        """Q(s, z, a) of a goal-conditioned critic."""
-        return goal_conditioned_q(self.critic_net, self.env, params, obs, goal, action)
+        """Q(s, z, a) of a level's goal-conditioned critic; [critics, ...] with several critics."""
+        if self.cfg.critics == 1:
+            return goal_conditioned_q(self.critic_net, self.env, params, obs, goal, action)
+        return jax.vmap(lambda p: goal_conditioned_q(self.critic_net, self.env, p, obs, goal, action))(params)
 
     def gs_value(self, params: Params, obs: jax.Array, noise: jax.Array, action: jax.Array) -> jax.Array:
         """R(s0, noise, a) of a goal-space critic."""
@@ -266,7 +268,12 @@ class Trainer:
             keys = jax.random.split(jax.random.fold_in(key, level), 4)
             action = jnp.zeros(self.action_size(level))
             actor = self.actor_net(level).init(keys[0], goal_features(env, obs, goal))
-            critic = self.critic_net.init(keys[1], jnp.concatenate([goal_features(env, obs, goal), action]))
+            critic_input = jnp.concatenate([goal_features(env, obs, goal), action])
+            if cfg.critics == 1:
+                critic = self.critic_net.init(keys[1], critic_input)
+            else:
+                critic_keys = jax.random.split(keys[1], cfg.critics)
+                critic = jax.vmap(lambda k: self.critic_net.init(k, critic_input))(critic_keys)
             gcs.append(GCLearner(actor, critic, actor, critic, opt["actor"].init(actor), opt["critic"].init(critic)))
             gs_action = jnp.zeros(2 * env.goal_size)
             gs_actor = self.gs_actor_net(level).init(keys[2], env.features(obs))
@@ -435,7 +442,10 @@ class Trainer:
             box = None if level == 0 else gss[level - 1].actor
 
             def step(learner: GCLearner, step_key):
-                batch = replay_sample(replay[level], step_key, cfg.batch_size)
+                sample_key, relabel_key = jax.random.split(step_key)
+                batch = replay_sample(replay[level], sample_key, cfg.batch_size)
+                if cfg.relabel > 0:
+                    batch = relabel_goals(batch, relabel_key, cfg.relabel, self.env, cfg.eps[level])
                 losses = self.gc_losses(level, learner, box, batch)
                 return gc_learner_step(learner, losses, opt["actor"], opt["critic"], cfg.tau)
 
@@ -687,7 +697,8 @@ def ddpg_losses(policy, q_value, learner: GCLearner, batch: GCRow, env: Env, sig
     """(critic loss, actor loss) functions of one goal-conditioned DDPG minibatch.
 
     ``policy(actor, obs, goal)`` is the deterministic policy over a batch and
-    ``q_value(critic, obs, goal, action)`` the critic. The reward is the paper's
+    ``q_value(critic, obs, goal, action)`` the critic: [B] values, or [critics, B] for a
+    clipped double-Q ensemble, whose targets bootstrap from the smallest. The reward is the paper's
     log N(goal; h(s'), sigma); the discount drops to 0 once the goal is reached, and
     bootstrapped values are capped at :func:`reward_cap`. Every goal-conditioned level
     of phase 1, and phase 2's added level, learn with these losses.
@@ -696,6 +707,8 @@ def ddpg_losses(policy, q_value, learner: GCLearner, batch: GCRow, env: Env, sig
     discount = gce.goal_conditioned_discount(batch.reached, gamma)
     next_action = policy(learner.target_actor, batch.next_obs, batch.goal)
     next_q = q_value(learner.target_critic, batch.next_obs, batch.goal, next_action)
+    if next_q.ndim > reward.ndim:
+        next_q = next_q.min(axis=0)
     cap = reward_cap(env.goal_size, sigma, gamma)
     target = jax.lax.stop_gradient(reward + discount * jnp.minimum(next_q, cap))
 
@@ -722,6 +735,24 @@ def gc_learner_step(learner: GCLearner, losses, actor_tx, critic_tx, tau: float)
         actor_opt=actor_opt, critic_opt=critic_opt,
     )
     return learner, values
+
+
+def relabel_goals(batch: GCRow, key: jax.Array, fraction: float, env: Env, eps: float) -> GCRow:
+    """``batch`` with a ``fraction`` of its rows given another row's goal offset.
+
+    Row i keeps its (s, a, s') and gets the goal h(s_i) + (goal_j - h(s_j)) for a random j,
+    so the critic sees every transition's outcome scored against many goal directions
+    and distances of the kind the level is asked for; ``reached`` is recomputed against
+    the new goal (within ``eps`` of h(s')).
+    """
+    pick_key, which_key = jax.random.split(key)
+    rows = batch.goal.shape[0]
+    offsets = batch.goal - env.goal_of_obs(batch.obs)
+    donor = jax.random.randint(pick_key, (rows,), 0, rows)
+    swap = jax.random.uniform(which_key, (rows,)) < fraction
+    goal = jnp.where(swap[:, None], env.goal_of_obs(batch.obs) + offsets[donor], batch.goal)
+    reached = jnp.linalg.norm(env.goal_of_obs(batch.next_obs) - goal, axis=-1) < eps
+    return batch.replace(goal=goal, reached=jnp.where(swap, reached, batch.reached))
 
 
 def gc_row(t: Transition) -> GCRow:

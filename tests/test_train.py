@@ -20,8 +20,11 @@ from mjx_emp.train import (
     MODE_GS,
     MODE_STARTS,
     GCRow,
+    GCLearner,
     Trainer,
+    ddpg_losses,
     epoch_schedule,
+    relabel_goals,
     reward_cap,
 )
 from tiny import TINY, tiny_after_two_epochs, tiny_trainer
@@ -92,6 +95,51 @@ def test_gc_critic_target_masks_bootstrap_where_reached():
     next_q = jnp.minimum(trainer.q_value(learner.target_critic, obs, batch.goal, next_action), cap)
     target = reward + jnp.array([0.0, TINY.gamma]) * next_q
     np.testing.assert_allclose(critic_loss(learner.critic), jnp.mean(jnp.square(q - target)), rtol=1e-5)
+
+
+def test_twin_critics_bootstrap_from_the_smaller_target_critic():
+    # Stand-in networks: a "critic" is its table of Q values per (critic, row); the policy is zero.
+    env = make_env("point_mass")
+    obs = jnp.zeros((2, env.obs_size))
+    batch = GCRow(obs=obs, goal=jnp.ones((2, 2)), action=jnp.zeros((2, 2)), next_obs=obs,
+                  reached=jnp.array([False, True]))
+    target_q = jnp.array([[-3.0, -1.0], [-5.0, -2.0]])  # two target critics, two rows
+    learner = GCLearner(actor=None, critic=None, target_actor=None, target_critic=target_q,
+                        actor_opt=None, critic_opt=None)
+    critic_loss, actor_loss = ddpg_losses(lambda actor, o, g: jnp.zeros((2, 2)), lambda params, o, g, a: params,
+                                          learner, batch, env, 0.4, 0.9)
+    reward = gce.goal_conditioned_reward(batch.goal, jnp.zeros((2, 2)), 0.4)
+    expected = reward + jnp.array([0.9 * -5.0, 0.0])  # row 0 bootstraps min(-3, -5); row 1 reached
+    assert float(critic_loss(jnp.stack([expected, expected]))) == pytest.approx(0.0, abs=1e-9)
+    assert float(critic_loss(jnp.stack([expected, expected + 1.0]))) == pytest.approx(0.5)
+    assert float(actor_loss(None, target_q)) == pytest.approx(2.75)  # ascends the critics' mean
+
+
+def test_two_critics_are_initialised_apart_and_evaluated_together():
+    trainer = Trainer(dataclasses.replace(TINY, critics=2))
+    state = trainer.init()
+    leaves = jax.tree.leaves(state.gc[0].critic)
+    assert all(leaf.shape[0] == 2 for leaf in leaves)
+    assert any(not np.allclose(leaf[0], leaf[1]) for leaf in leaves)  # two different initialisations
+    obs = jnp.zeros((3, trainer.env.obs_size))
+    assert trainer.q_value(state.gc[0].critic, obs, jnp.ones((3, 2)), jnp.zeros((3, 2))).shape == (2, 3)
+
+
+def test_relabelled_goals_take_other_rows_offsets_and_recompute_reached():
+    env = make_env("point_mass")
+    positions = jnp.array([[0.0, 0.0], [10.0, 0.0], [0.0, 10.0], [5.0, 5.0]])
+    obs = jnp.zeros((4, env.obs_size)).at[:, :2].set(positions)
+    next_obs = obs.at[:, 0].add(1.0)  # every row moved 1 along x
+    offsets = jnp.array([[1.0, 0.0], [0.0, 3.0], [-2.0, 0.0], [0.0, -1.0]])
+    batch = GCRow(obs=obs, goal=positions + offsets, action=jnp.zeros((4, 2)), next_obs=next_obs,
+                  reached=jnp.array([True, False, False, False]))
+    unchanged = relabel_goals(batch, jax.random.key(0), 0.0, env, 0.3)
+    assert all(np.array_equal(a, b) for a, b in zip(jax.tree.leaves(unchanged), jax.tree.leaves(batch)))
+    relabelled = relabel_goals(batch, jax.random.key(0), 1.0, env, 0.3)
+    new_offsets = np.asarray(relabelled.goal - positions)
+    assert all(any(np.allclose(row, o) for o in np.asarray(offsets)) for row in new_offsets)
+    np.testing.assert_array_equal(relabelled.reached, np.linalg.norm(new_offsets - [1.0, 0.0], axis=-1) < 0.3)
+    np.testing.assert_array_equal(relabelled.obs, obs)
 
 
 def test_two_epochs_fill_buffers_learn_and_do_not_recompile():
