@@ -69,9 +69,54 @@ POINT_MASS_K2 = dataclasses.replace(
     init_half_width=(0.2, 0.4), max_half_width=(3.0, 15.0), action_noise=0.1, gs_iterations=8,
 )
 
+# ---- the paper's robots on a 2-core CPU ----------------------------------------------------
+# Found on Ant Field with a fixed goal box of +-1.5 m (goal-space learning off) before the
+# curriculum runs; each figure is from a run of 50-100 epochs (README, "Learning on the
+# robots"). The Table-1 learner (DDPG, sigma_gc 0.4, critic rate 3e-4, tau 0.01) did not
+# learn to walk to goals: final distance stayed ~1.0-1.2 m, the greedy policy moved 0.06 m
+# per action (random actions: 0.18) and the critic loss grew without bound (4 -> 1.2e3 in
+# 15 epochs; with TD3's twin critics to 2.7e5). What made a critic that tracks the
+# policy's returns (Q -28 against a rollout's -28 at 1-1.5 m) and a box that grows:
+# - sigma_gc = 1.0 instead of 0.4: the reward's quadratic term is 6x flatter, so errors
+#   on far goals no longer swamp the critic (loss ~30 instead of ~300 with the rest equal);
+# - critic rate 1e-4 and tau 0.005 (with 3e-4 / 0.01 the loss kept growing);
+# - half of every minibatch relabelled with another row's goal offset (``relabel``);
+# - 16 environments and 100 gradient steps per iteration: ~50 sampled rows per collected
+#   transition instead of ~5, as the CPU's gradient steps are cheap beside its physics;
+# - action noise 0.3 and 8 goal-space iterations per epoch (16 episodes per iteration);
+# - sigma_gs = 0.5, which settles the box about 0.7 m beyond the policy's reach.
+_ROBOT_CPU = dict(
+    n=(20,), sigma_gs=(0.5,), sigma_gc=(1.0,), epochs=600, num_envs=16, chunk_steps=20, gc_grad_steps=100,
+    gs_iterations=8, batch_size=256, hidden=(256, 256), replay_capacity=200_000, gs_replay_capacity=65_536,
+    start_capacity=65_536, actor_lr=3e-4, critic_lr=1e-4, gs_actor_lr=2e-4, gs_critic_lr=1e-3, tau=0.005,
+    action_noise=0.3, relabel=0.5,
+)
+ANT_FIELD_CPU_K1 = TrainConfig(env="ant_field", eps=(0.6,), init_half_width=(0.3,), max_half_width=(10.0,),
+                               **_ROBOT_CPU)
+HALF_CHEETAH_CPU_K1 = TrainConfig(env="half_cheetah_field", eps=(1.0,), init_half_width=(0.5,),
+                                  max_half_width=(20.0,), **_ROBOT_CPU)
+
+# Two levels: level 0 as above; level 1 gets n = 5 subgoals (the paper's Ant Field Big
+# uses 10) to keep a CPU epoch affordable (each level-1 iteration runs until all 16
+# environments finished an episode of up to 100 actions), and twice level 0's widths,
+# as the paper's Ant rows double sigma and eps per level. 300 epochs: a k=2 epoch
+# simulates several times a k=1 epoch's steps.
+ANT_FIELD_CPU_K2 = dataclasses.replace(
+    ANT_FIELD_CPU_K1, n=(20, 5), sigma_gc=(1.0, 2.0), sigma_gs=(0.5, 1.0), eps=(0.6, 1.2),
+    init_half_width=(0.3, 0.6), max_half_width=(10.0, 50.0), epochs=300,
+)
+HALF_CHEETAH_CPU_K2 = dataclasses.replace(
+    HALF_CHEETAH_CPU_K1, n=(20, 5), sigma_gc=(1.0, 2.0), sigma_gs=(0.5, 1.0), eps=(1.0, 2.0),
+    init_half_width=(0.5, 1.0), max_half_width=(20.0, 100.0), epochs=300,
+)
+
 PRESETS: dict[str, tuple[str, TrainConfig]] = {
     "point-mass-k1": ("CPU default: point mass, one level of n=10 skills", POINT_MASS_K1),
     "point-mass-k2": ("CPU: point mass, two levels n=(10, 5)", POINT_MASS_K2),
+    "ant-field-cpu-k1": ("CPU: the paper's Ant, one level of n=20 skills", ANT_FIELD_CPU_K1),
+    "half-cheetah-cpu-k1": ("CPU: the paper's Half Cheetah, one level of n=20 skills", HALF_CHEETAH_CPU_K1),
+    "ant-field-cpu-k2": ("CPU: the paper's Ant, two levels n=(20, 5)", ANT_FIELD_CPU_K2),
+    "half-cheetah-cpu-k2": ("CPU: the paper's Half Cheetah, two levels n=(20, 5)", HALF_CHEETAH_CPU_K2),
     "ant-field-small-k1": ("Table 1: Ant Field Small, k=1",
                            _paper("ant_field", (20,), (0.4,), (1.75,), (0.6,), 1220, (10.0,))),
     "ant-field-big-k1": ("Table 1: Ant Field Big, k=1",
@@ -118,10 +163,20 @@ def _phase2(n: int, eps: float, length: float, dims: int, ahead: float = 0.0) ->
                         region_offset=(ahead * length,) + (0.0,) * (dims - 1), **_PHASE2_PAPER)
 
 
+def _robot_phase2(n: int, eps: float, length: float, dims: int, ahead: float = 0.0) -> Phase2Config:
+    """A Table-2 task sized for the CPU: 16 environments, 30 epochs."""
+    return dataclasses.replace(_phase2(n, eps, length, dims, ahead), num_envs=16, batch_size=256, epochs=30,
+                               replay_capacity=100_000)
+
+
+_ANT_SMALL_TASK = _robot_phase2(10, 1.8, 40, 2)
+_CHEETAH_SMALL_TASK = _robot_phase2(10, 3.0, 95, 1, ahead=0.1)
+
 _POINT_MASS_PHASE2 = Phase2Config(n=3, eps=0.6, sigma=0.6, region=(2.4, 2.4), region_offset=(0.0, 0.0), epochs=30)
 
 PHASE2_PRESETS: dict[str, tuple[str, str, Phase2Config]] = {
-    # name: (description, the phase-1 preset it builds on, config)
+    # name: (description, the phase-1 preset it builds on, config). A run without a named
+    # preset gets the first one whose phase-1 preset has its domain and n.
     "point-mass-k1": ("CPU default: goals in a 2.4 x 2.4 square, inside the k=1 agent's learned "
                       "goal space; 3 attempts", "point-mass-k1", _POINT_MASS_PHASE2),
     "point-mass-wide-k2": ("CPU: goals in an 8 x 8 square, beyond the k=1 goal space; 3 attempts",
@@ -132,6 +187,14 @@ PHASE2_PRESETS: dict[str, tuple[str, str, Phase2Config]] = {
                             "point-mass-k2", dataclasses.replace(_POINT_MASS_PHASE2, region=(16.0, 16.0))),
     "point-mass-wider-k1": ("CPU: point-mass-wider-k2's task for the k=1 agent", "point-mass-k1",
                             dataclasses.replace(_POINT_MASS_PHASE2, region=(16.0, 16.0))),
+    "ant-field-cpu-k1": ("CPU: Table 2's Ant Field Small task (40 x 40, 10 attempts, eps 1.8)",
+                         "ant-field-cpu-k1", _ANT_SMALL_TASK),
+    "ant-field-cpu-k2": ("CPU: Table 2's Ant Field Small task for the two-level agent", "ant-field-cpu-k2",
+                         _ANT_SMALL_TASK),
+    "half-cheetah-cpu-k1": ("CPU: Table 2's Half Cheetah Small task (95 m, 10 attempts, eps 3.0)",
+                            "half-cheetah-cpu-k1", _CHEETAH_SMALL_TASK),
+    "half-cheetah-cpu-k2": ("CPU: Table 2's Half Cheetah Small task for the two-level agent",
+                            "half-cheetah-cpu-k2", _CHEETAH_SMALL_TASK),
     "ant-field-small-k1": ("Table 2: Ant Field Small, k=1", "ant-field-small-k1", _phase2(10, 1.8, 40, 2)),
     "ant-field-big-k1": ("Table 2: Ant Field Big, k=1", "ant-field-big-k1", _phase2(25, 2.4, 200, 2)),
     "ant-field-big-k2": ("Table 2: Ant Field Big, k=2", "ant-field-big-k2", _phase2(10, 2.4, 200, 2)),

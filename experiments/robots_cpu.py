@@ -1,0 +1,96 @@
+"""Hierarchical Empowerment on the paper's robots at CPU scale: presets x seeds, one JSON row each.
+
+For every (preset, seed), trains the preset (or resumes BASE/<preset>-s<seed> if a run is
+there: a finished run is only evaluated) through the CLI's own functions, then evaluates
+its newest checkpoint as `mjx-emp eval` does: the top goal-space box at the initial
+state, greedy success on ``--episodes`` goals from it, and METRA's coverage (1 m cells
+of goal space visited by 48 greedy top-level skills). Rows carry ``preset``, ``seed``,
+``env_steps``, ``wall_s`` (training time summed from the run's metrics, compile
+included), ``top_area`` (m^2 for Ant, m for Half Cheetah), ``success`` and
+``coverage_cells``. ``python -m mjx_emp.experiments.robots_cpu --presets ant-field-cpu-k1
+--seeds 0 1 2 3``; rows are merged into ``--out`` (one per preset and seed).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import jax
+import tyro
+
+from mjx_emp import run
+from mjx_emp.evaluate import phase1_figures
+from mjx_emp.experiments.presets import PRESETS
+from mjx_emp.experiments.train import ResumeExperiment, TrainExperiment
+
+
+@dataclasses.dataclass
+class Args:
+    """Robot presets over seeds, evaluated the same way."""
+
+    presets: tuple[str, ...] = ("ant-field-cpu-k1",)
+    seeds: tuple[int, ...] = (0, 1, 2, 3)
+    epochs: int | None = None
+    """Override the presets' epoch counts (a shorter budget); None keeps them."""
+    base: str = "runs/robots_cpu"
+    """Where the runs go (existing runs are resumed or reused)."""
+    episodes: int = 400
+    """Greedy evaluation episodes per run."""
+    out: str = "benchmarks/results/robots_cpu.json"
+
+
+def train_or_resume(base: Path, preset: str, seed: int, epochs: int | None) -> Path:
+    """The run directory of (preset, seed), trained to its epoch count."""
+    if preset not in PRESETS:
+        raise SystemExit(f"presets: {preset!r} is unknown; allowed values: {sorted(PRESETS)}")
+    config = dataclasses.replace(PRESETS[preset][1], seed=seed)
+    if epochs is not None:
+        config = dataclasses.replace(config, epochs=epochs)
+    run_dir = base / f"{preset}-s{seed}"
+    if (run_dir / run.CONFIG_FILE).exists():
+        run.resume(ResumeExperiment(resume=str(run_dir), epochs=config.epochs))
+    else:
+        run.start(TrainExperiment(config=config, run_dir=str(run_dir)))
+    return run_dir
+
+
+def evaluate_run(run_dir: Path, preset: str, seed: int, episodes: int) -> dict:
+    """One JSON row: what the run used and what its top level learned."""
+    trainer, _, state = run.load_run(run_dir)
+    figures = phase1_figures(trainer, state, jax.random.key(1000 + seed), episodes)
+    metrics = [json.loads(line) for line in (run_dir / run.METRICS_FILE).read_text().splitlines() if line]
+    top = figures["levels"][-1]
+    return {
+        "preset": preset, "seed": seed, "run_dir": str(run_dir), "epoch": figures["epoch"],
+        "env_steps": figures["env_steps"], "wall_s": sum(m["seconds"] for m in metrics),
+        "top_area": top["volume"], "top_half_width": top["half_width"], "top_shift": top["shift"],
+        "success": top["success"], "final_distance": top["final_distance"],
+        "coverage_cells": figures["coverage_cells"], "volume_x_success": figures["volume_x_success"],
+        "flip_resets": sum(m.get("flip_resets", 0) for m in metrics),
+        "levels": figures["levels"],
+    }
+
+
+def main(args: Args) -> None:
+    out = Path(args.out)
+    rows = json.loads(out.read_text())["rows"] if out.exists() else []
+    for preset in args.presets:
+        for seed in args.seeds:
+            run_dir = train_or_resume(Path(args.base), preset, seed, args.epochs)
+            row = evaluate_run(run_dir, preset, seed, args.episodes)
+            rows = [r for r in rows if (r["preset"], r["seed"]) != (preset, seed)] + [row]
+            print(json.dumps({k: v for k, v in row.items() if k != "levels"}), flush=True)
+            out.parent.mkdir(parents=True, exist_ok=True)
+            out.write_text(json.dumps({"backend": jax.default_backend(), "rows": rows}, indent=1))
+    print("| preset | seed | env steps | wall s | top area | success | coverage cells |")
+    print("|---|---|---|---|---|---|---|")
+    for r in rows:
+        print(f"| {r['preset']} | {r['seed']} | {r['env_steps']:.3g} | {r['wall_s']:.0f} | {r['top_area']:.3g} | "
+              f"{r['success']:.2f} | {r['coverage_cells']} |")
+    print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+    main(tyro.cli(Args))
