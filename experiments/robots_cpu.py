@@ -36,6 +36,9 @@ class Args:
     """Override the presets' epoch counts (a shorter budget); None keeps them."""
     base: str = "runs/robots_cpu"
     """Where the runs go (existing runs are resumed or reused)."""
+    train: bool = True
+    """False evaluates existing runs at their newest checkpoint without training further
+    (a row then records the epoch it reached)."""
     episodes: int = 400
     """Greedy evaluation episodes per run."""
     out: str = "benchmarks/results/robots_cpu.json"
@@ -64,6 +67,7 @@ def evaluate_run(run_dir: Path, preset: str, seed: int, episodes: int) -> dict:
     top = figures["levels"][-1]
     return {
         "preset": preset, "seed": seed, "run_dir": str(run_dir), "epoch": figures["epoch"],
+        "preset_epochs": trainer.cfg.epochs,
         "env_steps": figures["env_steps"], "wall_s": sum(m["seconds"] for m in metrics),
         "top_area": top["volume"], "top_half_width": top["half_width"], "top_shift": top["shift"],
         "success": top["success"], "final_distance": top["final_distance"],
@@ -78,7 +82,10 @@ def main(args: Args) -> None:
     rows = json.loads(out.read_text())["rows"] if out.exists() else []
     for preset in args.presets:
         for seed in args.seeds:
-            run_dir = train_or_resume(Path(args.base), preset, seed, args.epochs)
+            if args.train:
+                run_dir = train_or_resume(Path(args.base), preset, seed, args.epochs)
+            else:
+                run_dir = Path(args.base) / f"{preset}-s{seed}"
             row = evaluate_run(run_dir, preset, seed, args.episodes)
             rows = [r for r in rows if (r["preset"], r["seed"]) != (preset, seed)] + [row]
             print(json.dumps({k: v for k, v in row.items() if k != "levels"}), flush=True)
