@@ -216,9 +216,17 @@ PHASE2_PRESETS: dict[str, tuple[str, str, Phase2Config]] = {
 
 
 def phase2_preset_for(skills: TrainConfig) -> str | None:
-    """The first phase-2 preset built on a phase-1 preset with ``skills``' domain and n, if any."""
-    for name, (_, phase1, _) in PHASE2_PRESETS.items():
-        base = PRESETS[phase1][1]
+    """The phase-2 preset for a run trained with ``skills``: the one built on the phase-1
+    preset it was trained with (seed and epochs aside), else the first one built on a
+    preset with its domain and n, else None."""
+    def same_preset(base: TrainConfig) -> bool:
+        return dataclasses.replace(base, seed=skills.seed, epochs=skills.epochs) == skills
+
+    candidates = [(name, PRESETS[phase1][1]) for name, (_, phase1, _) in PHASE2_PRESETS.items()]
+    for name, base in candidates:
+        if same_preset(base):
+            return name
+    for name, base in candidates:
         if (base.env, tuple(base.n)) == (skills.env, tuple(skills.n)):
             return name
     return None

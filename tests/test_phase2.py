@@ -130,6 +130,9 @@ def test_every_table_2_preset_builds_on_a_phase_1_preset_of_the_same_domain():
         if name.startswith(("ant", "half")):
             assert name == phase1
     assert phase2_preset_for(PRESETS["ant-field-xl-k3"][1]) == "ant-field-xl-k3"
+    # Two presets share Ant Field's n = (20,): each run gets the task sized for its own preset.
+    assert phase2_preset_for(PRESETS["ant-field-small-k1"][1]) == "ant-field-small-k1"
+    assert phase2_preset_for(dataclasses.replace(PRESETS["ant-field-cpu-k1"][1], seed=3)) == "ant-field-cpu-k1"
     assert phase2_preset_for(PRESETS["point-mass-k2"][1]) == "point-mass-wide-k2"
     assert phase2_preset_for(dataclasses.replace(PRESETS["point-mass-k2"][1], n=(7, 7))) is None
     cheetah = PHASE2_PRESETS["half-cheetah-big-k2"][2]
