@@ -39,6 +39,9 @@ class Args:
     train: bool = True
     """False evaluates existing runs at their newest checkpoint without training further
     (a row then records the epoch it reached)."""
+    at_epoch: int | None = None
+    """Evaluate this epoch's checkpoint (it must still be kept) instead of the newest; wall
+    time and resets are then summed up to it."""
     episodes: int = 400
     """Greedy evaluation episodes per run."""
     out: str = "benchmarks/results/robots_cpu.json"
@@ -59,11 +62,12 @@ def train_or_resume(base: Path, preset: str, seed: int, epochs: int | None) -> P
     return run_dir
 
 
-def evaluate_run(run_dir: Path, preset: str, seed: int, episodes: int) -> dict:
-    """One JSON row: what the run used and what its top level learned."""
-    trainer, _, state = run.load_run(run_dir)
+def evaluate_run(run_dir: Path, preset: str, seed: int, episodes: int, epoch: int | None = None) -> dict:
+    """One JSON row: what the run used and what its top level learned (at ``epoch``, or the newest)."""
+    trainer, epoch, state = run.load_run(run_dir, epoch=epoch)
     figures = phase1_figures(trainer, state, jax.random.key(1000 + seed), episodes)
     metrics = [json.loads(line) for line in (run_dir / run.METRICS_FILE).read_text().splitlines() if line]
+    metrics = [m for m in metrics if m["epoch"] <= epoch]
     top = figures["levels"][-1]
     return {
         "preset": preset, "seed": seed, "run_dir": str(run_dir), "epoch": figures["epoch"],
@@ -86,7 +90,7 @@ def main(args: Args) -> None:
                 run_dir = train_or_resume(Path(args.base), preset, seed, args.epochs)
             else:
                 run_dir = Path(args.base) / f"{preset}-s{seed}"
-            row = evaluate_run(run_dir, preset, seed, args.episodes)
+            row = evaluate_run(run_dir, preset, seed, args.episodes, args.at_epoch)
             rows = [r for r in rows if (r["preset"], r["seed"]) != (preset, seed)] + [row]
             print(json.dumps({k: v for k, v in row.items() if k != "levels"}), flush=True)
             out.parent.mkdir(parents=True, exist_ok=True)
