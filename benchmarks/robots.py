@@ -9,7 +9,10 @@ training). Reported:
 - the mean displacement of h(s) per action (steps that ended in a reset excluded);
 - random-action physics throughput (environment actions/s and physics steps/s) of the batch;
 - with ``--runs ROBOT=RUN_DIR``, the mean displacement per action of 48 greedy top-level
-  skills of that run's newest checkpoint, from the initial state (``Trainer.skill_paths``).
+  skills of that run's newest checkpoint, from the initial state (``Trainer.skill_paths``);
+- what the robot can do without learning: the longest net displacement in 20 actions of
+  an open-loop gait that repeats two random actions (random search over 300 gaits in
+  MuJoCo C; an Ant gait that flips is discarded).
 
 Prints a Markdown table and writes JSON (default ``benchmarks/results/robots_<backend>.json``).
 """
@@ -24,6 +27,7 @@ from pathlib import Path
 
 import jax
 import jax.numpy as jnp
+import mujoco
 import numpy as np
 import tyro
 
@@ -89,6 +93,32 @@ def measure_random(env, args: Args) -> dict:
     }
 
 
+def open_loop_gait_search(env, candidates: int = 300, period: int = 2, actions: int = 20, seed: int = 0) -> dict:
+    """Best net displacement of h(s) after ``actions`` actions of a repeated ``period``-action gait.
+
+    Random search in MuJoCo C from the home pose: each candidate repeats ``period`` random
+    actions (signs +-1 times magnitudes in [0.3, 1]); gaits that leave the torso upside
+    down are discarded. A lower bound on what a policy could reach per skill.
+    """
+    m, rng = env.mj_model, np.random.default_rng(seed)
+    best, kept = 0.0, 0
+    for _ in range(candidates):
+        gait = rng.choice([-1.0, 1.0], size=(period, m.nu)) * rng.uniform(0.3, 1.0, size=(period, m.nu))
+        d = mujoco.MjData(m)
+        d.qpos[:] = env.home_qpos
+        upright = True
+        for t in range(actions):
+            d.ctrl[:] = gait[t % period]
+            for _ in range(env.action_repeat):
+                mujoco.mj_step(m, d)
+            upright &= bool(env.torso_quat is None or env.upright(d))
+        if upright:
+            kept += 1
+            best = max(best, float(np.linalg.norm(d.qpos[list(env.goal_qpos)] - env.home_qpos[list(env.goal_qpos)])))
+    return {"gait_best_displacement": best, "gait_actions": actions, "gait_candidates": candidates,
+            "gait_upright": kept}
+
+
 def measure_trained(run_dir: str, seed: int) -> dict:
     """Mean displacement per action of greedy top-level skills of a trained run, from the initial state."""
     from mjx_emp import run
@@ -109,15 +139,16 @@ def markdown(rows: list[dict]) -> str:
     """The results as a Markdown table."""
     lines = [
         "| robot | control s | flipped @20 | flipped @100 | max torso z (m) | m/action random | "
-        "m/action trained | actions/s (B) |",
-        "|---|---|---|---|---|---|---|---|",
+        "m/action trained | best 2-action gait, m in 20 actions | actions/s (B) |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         trained = r.get("trained", {}).get("policy_displacement_per_action")
         lines.append(
             f"| {r['robot']} | {r['control_dt']:.4g} | {r['flipped_after_20']:.2f} | {r['flipped_after_100']:.2f} | "
             f"{r['max_torso_height']:.2f} | {r['random_displacement_per_action']:.3f} | "
-            f"{'-' if trained is None else f'{trained:.3f}'} | {r['actions_per_s']:,.0f} ({r['batch_size']}) |"
+            f"{'-' if trained is None else f'{trained:.3f}'} | {r['gait_best_displacement']:.2f} | "
+            f"{r['actions_per_s']:,.0f} ({r['batch_size']}) |"
         )
     return "\n".join(lines)
 
@@ -129,7 +160,7 @@ def main(args: Args) -> None:
         env = make_env(robot)
         row = {"robot": robot, "control_dt": env.control_dt, "batch_size": args.batch_size,
                "actions": args.actions, "total_mass": float(env.mj_model.body_mass.sum()),
-               **measure_random(env, args)}
+               **measure_random(env, args), **open_loop_gait_search(env, seed=args.seed)}
         if robot in trained:
             row["trained"] = measure_trained(trained[robot], args.seed)
         rows.append(row)

@@ -78,6 +78,9 @@ def evaluate_run(run_dir: Path, preset: str, seed: int, episodes: int, epoch: in
         "coverage_cells": figures["coverage_cells"], "volume_x_success": figures["volume_x_success"],
         "flip_resets": sum(m.get("flip_resets", 0) for m in metrics),
         "levels": figures["levels"],
+        # per epoch: epoch, env steps, top box volume, greedy success on that epoch's num_envs goals
+        "curve": [[m["epoch"], m["env_steps"], m["levels"][-1]["volume"], m["levels"][-1]["success"]]
+                  for m in metrics],
     }
 
 
@@ -92,7 +95,7 @@ def main(args: Args) -> None:
                 run_dir = Path(args.base) / f"{preset}-s{seed}"
             row = evaluate_run(run_dir, preset, seed, args.episodes, args.at_epoch)
             rows = [r for r in rows if (r["preset"], r["seed"]) != (preset, seed)] + [row]
-            print(json.dumps({k: v for k, v in row.items() if k != "levels"}), flush=True)
+            print(json.dumps({k: v for k, v in row.items() if k not in ("levels", "curve")}), flush=True)
             out.parent.mkdir(parents=True, exist_ok=True)
             out.write_text(json.dumps({"backend": jax.default_backend(), "rows": rows}, indent=1))
     print("| preset | seed | env steps | wall s | top area | success | coverage cells |")
