@@ -14,7 +14,7 @@ training). Reported:
   an open-loop gait that repeats two random actions (random search over 300 gaits in
   MuJoCo C; an Ant gait that flips is discarded).
 
-Prints a Markdown table and writes JSON (default ``benchmarks/results/robots_<backend>.json``).
+Prints a Markdown table and writes JSON (default ``benchmarks/results/robot_models_<backend>.json``).
 """
 
 from __future__ import annotations
@@ -46,7 +46,7 @@ class Args:
     runs: tuple[str, ...] = ()
     """ROBOT=RUN_DIR pairs: trained runs whose greedy skills are measured too."""
     out: str = ""
-    """JSON output path; empty means benchmarks/results/robots_<backend>.json."""
+    """JSON output path; empty means benchmarks/results/robot_models_<backend>.json."""
 
 
 def torso_up_z(data) -> jax.Array:
@@ -168,7 +168,7 @@ def main(args: Args) -> None:
     table = markdown(rows)
     print(table)
     backend = jax.default_backend()
-    out = Path(args.out or Path(__file__).parent / "results" / f"robots_{backend}.json")
+    out = Path(args.out or Path(__file__).parent / "results" / f"robot_models_{backend}.json")
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps({"backend": backend, "machine": platform.processor() or platform.machine(),
                                "jax": jax.__version__, "rows": rows}, indent=1))

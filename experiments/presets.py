@@ -1,5 +1,6 @@
 """Training presets: phase 1 per row of the paper's Table 1, phase 2 per row of its Table 2,
-plus small CPU presets.
+plus CPU presets (point mass, and the paper's robots with the learner described above
+``_ROBOT_CPU``).
 
 Values the paper gives (k, n, sigma_gc, sigma_gs, eps, epochs, and the 10 x S=50 /
 1 x S=10 epoch structure) are copied from its Table 1 and appendix. It leaves the rest
@@ -71,8 +72,8 @@ POINT_MASS_K2 = dataclasses.replace(
 
 # ---- the paper's robots on a 2-core CPU ----------------------------------------------------
 # Found on Ant Field with a fixed goal box of +-1.5 m (goal-space learning off) before the
-# curriculum runs; each figure is from a run of 50-100 epochs (README, "Learning on the
-# robots"). The Table-1 learner (DDPG, sigma_gc 0.4, critic rate 3e-4, tau 0.01) did not
+# curriculum runs; each figure is from a run of 24-115 epochs (README, "Learning on the
+# robots"; benchmarks/results/ant_learner_diagnostics_cpu.json). The Table-1 learner (DDPG, sigma_gc 0.4, critic rate 3e-4, tau 0.01) did not
 # learn to walk to goals: final distance stayed ~1.0-1.2 m, the greedy policy moved 0.06 m
 # per action (random actions: 0.18) and the critic loss grew without bound (4 -> 1.2e3 in
 # 15 epochs; with TD3's twin critics to 2.7e5). What made a critic that tracks the
