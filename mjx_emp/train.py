@@ -342,10 +342,11 @@ class Trainer:
         """Run the agent rooted at ``root`` and file what it saw into the right buffers.
 
         GC: every valid root transition goes to the level's replay. GS: every finished root
-        episode goes to the goal-space replay. With ``fresh_replay`` the buffer an item fills
-        is emptied first (the paper's fresh D per call). EVAL: nothing is stored (success and distance
-        are read from each environment's first episode in every mode). STARTS:
-        continues the greedy chain; the state each level got a new goal in is a start state.
+        episode goes to the goal-space replay. With ``fresh_replay`` the buffer an item
+        fills is emptied first (the paper's fresh D per call). EVAL: nothing is stored
+        (success and distance are read from each environment's first episode in every
+        mode). STARTS: continues the greedy chain; the state each level got a new goal in
+        is a start state.
         """
         cfg, env, h = self.cfg, self.env, self.hierarchy
         params, start_params = self.rollout_inputs(state, root, mode)
@@ -556,7 +557,7 @@ class Trainer:
         start, then every primitive step) and a mask [T + 1, skills] that is True up to and
         including the step that ended each skill (its first root episode; steps of later
         episodes and a flip reset's aftermath are masked out). METRA's coverage count and
-        the README's plots read these paths.
+        the robots benchmark read these paths.
         """
         positions, mask = _jit_skill_paths(self, state, key, skills)
         return np.asarray(positions), np.asarray(mask)
@@ -698,10 +699,10 @@ def ddpg_losses(policy, q_value, learner: GCLearner, batch: GCRow, env: Env, sig
 
     ``policy(actor, obs, goal)`` is the deterministic policy over a batch and
     ``q_value(critic, obs, goal, action)`` the critic: [B] values, or [critics, B] for a
-    clipped double-Q ensemble, whose targets bootstrap from the smallest. The reward is the paper's
-    log N(goal; h(s'), sigma); the discount drops to 0 once the goal is reached, and
-    bootstrapped values are capped at :func:`reward_cap`. Every goal-conditioned level
-    of phase 1, and phase 2's added level, learn with these losses.
+    clipped double-Q ensemble, whose targets bootstrap from the smallest. The reward is
+    the paper's log N(goal; h(s'), sigma); the discount drops to 0 once the goal is
+    reached, and bootstrapped values are capped at :func:`reward_cap`. Every
+    goal-conditioned level of phase 1, and phase 2's added level, learn with these losses.
     """
     reward = gce.goal_conditioned_reward(batch.goal, env.goal_of_obs(batch.next_obs), sigma)
     discount = gce.goal_conditioned_discount(batch.reached, gamma)
