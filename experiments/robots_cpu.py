@@ -6,8 +6,9 @@ its newest checkpoint as `mjx-emp eval` does: the top goal-space box at the init
 state, greedy success on ``--episodes`` goals from it, and METRA's coverage (1 m cells
 of goal space visited by 48 greedy top-level skills). Rows carry ``preset``, ``seed``,
 ``env_steps``, ``wall_s`` (training time summed from the run's metrics, compile
-included), ``top_area`` (m^2 for Ant, m for Half Cheetah), ``success`` and
-``coverage_cells``. ``python -m mjx_emp.experiments.robots_cpu --presets ant-field-cpu-k1
+included), ``top_area`` (m^2 for Ant, m for Half Cheetah), ``success``,
+``coverage_cells`` and, where RUN_DIR/phase2 holds a phase-2 run (`mjx-emp phase2
+RUN_DIR`), ``phase2``: its mean minimum distance to goal and success. ``python -m mjx_emp.experiments.robots_cpu --presets ant-field-cpu-k1
 --seeds 0 1 2 3``; rows are merged into ``--out`` (one per preset and seed).
 """
 
@@ -81,7 +82,19 @@ def evaluate_run(run_dir: Path, preset: str, seed: int, episodes: int, epoch: in
         # per epoch: epoch, env steps, top box volume, greedy success on that epoch's num_envs goals
         "curve": [[m["epoch"], m["env_steps"], m["levels"][-1]["volume"], m["levels"][-1]["success"]]
                   for m in metrics],
+        "phase2": phase2_figures(run_dir, seed, episodes),
     }
+
+
+def phase2_figures(run_dir: Path, seed: int, episodes: int) -> dict | None:
+    """The paper's phase-2 figure of RUN_DIR/phase2 (as `mjx-emp eval` reports it), or None."""
+    phase2_dir = run_dir / run.PHASE2_SUBDIR
+    if not (phase2_dir / run.CONFIG_FILE).exists():
+        return None
+    trainer, epoch, state = run.load_phase2(phase2_dir)
+    cfg = trainer.cfg
+    return {"epoch": epoch, "n": cfg.n, "eps": cfg.eps, "region": list(cfg.region),
+            **trainer.evaluate(state, jax.random.key(1000 + seed), episodes)}
 
 
 def main(args: Args) -> None:
