@@ -8,8 +8,9 @@ of goal space visited by 48 greedy top-level skills). Rows carry ``preset``, ``s
 ``env_steps``, ``wall_s`` (training time summed from the run's metrics, compile
 included), ``top_area`` (m^2 for Ant, m for Half Cheetah), ``success``,
 ``coverage_cells`` and, where RUN_DIR/phase2 holds a phase-2 run (`mjx-emp phase2
-RUN_DIR`), ``phase2``: its mean minimum distance to goal and success. ``python -m mjx_emp.experiments.robots_cpu --presets ant-field-cpu-k1
---seeds 0 1 2 3``; rows are merged into ``--out`` (one per preset and seed).
+RUN_DIR`), ``phase2``: its mean minimum distance to goal and success.
+``python -m mjx_emp.experiments.robots_cpu --presets ant-field-cpu-k1 --seeds 0 1 2 3``;
+rows are merged into ``--out`` (one per preset and seed).
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ import jax
 import tyro
 
 from mjx_emp import run
-from mjx_emp.evaluate import phase1_figures
+from mjx_emp.evaluate import phase1_figures, phase2_figures
 from mjx_emp.experiments.presets import PRESETS
 from mjx_emp.experiments.train import ResumeExperiment, TrainExperiment
 
@@ -82,19 +83,16 @@ def evaluate_run(run_dir: Path, preset: str, seed: int, episodes: int, epoch: in
         # per epoch: epoch, env steps, top box volume, greedy success on that epoch's num_envs goals
         "curve": [[m["epoch"], m["env_steps"], m["levels"][-1]["volume"], m["levels"][-1]["success"]]
                   for m in metrics],
-        "phase2": phase2_figures(run_dir, seed, episodes),
+        "phase2": phase2_of(run_dir, seed, episodes),
     }
 
 
-def phase2_figures(run_dir: Path, seed: int, episodes: int) -> dict | None:
-    """The paper's phase-2 figure of RUN_DIR/phase2 (as `mjx-emp eval` reports it), or None."""
+def phase2_of(run_dir: Path, seed: int, episodes: int) -> dict | None:
+    """The paper's phase-2 figure of RUN_DIR/phase2, as `mjx-emp eval` reports it, or None."""
     phase2_dir = run_dir / run.PHASE2_SUBDIR
     if not (phase2_dir / run.CONFIG_FILE).exists():
         return None
-    trainer, epoch, state = run.load_phase2(phase2_dir)
-    cfg = trainer.cfg
-    return {"epoch": epoch, "n": cfg.n, "eps": cfg.eps, "region": list(cfg.region),
-            **trainer.evaluate(state, jax.random.key(1000 + seed), episodes)}
+    return phase2_figures(*run.load_phase2(phase2_dir), jax.random.key(1000 + seed), episodes)
 
 
 def main(args: Args) -> None:

@@ -149,7 +149,14 @@ def evaluate(exp: EvalExperiment) -> dict:
         raise ConfigError(f"episodes: must be >= 1; got {exp.episodes}")
     import jax
 
-    from mjx_emp.evaluate import COVERAGE_SKILLS, aggregate_agent, aggregate_phase2, aggregate_runs, phase1_figures
+    from mjx_emp.evaluate import (
+        COVERAGE_SKILLS,
+        aggregate_agent,
+        aggregate_phase2,
+        aggregate_runs,
+        phase1_figures,
+        phase2_figures,
+    )
 
     runs = []
     for run_dir in exp.run_dirs:
@@ -157,13 +164,7 @@ def evaluate(exp: EvalExperiment) -> dict:
         report = {"run_dir": run_dir, **phase1_figures(trainer, state, jax.random.key(exp.seed), exp.episodes)}
         phase2_dir = Path(run_dir) / run.PHASE2_SUBDIR
         if (phase2_dir / run.CONFIG_FILE).exists():
-            phase2, epoch, phase2_state = run.load_phase2(phase2_dir)
-            cfg = phase2.cfg
-            report["phase2"] = {
-                "epoch": epoch, "n": cfg.n, "eps": cfg.eps, "region": list(cfg.region),
-                "region_offset": list(cfg.region_offset),
-                **phase2.evaluate(phase2_state, jax.random.key(exp.seed), exp.episodes),
-            }
+            report["phase2"] = phase2_figures(*run.load_phase2(phase2_dir), jax.random.key(exp.seed), exp.episodes)
         runs.append(report)
     report = {"runs": runs, "levels": aggregate_runs(runs), **aggregate_agent(runs)}
     with_phase2 = [r["phase2"] for r in runs if "phase2" in r]

@@ -85,6 +85,14 @@ def phase1_figures(trainer, state, key, episodes: int) -> dict:
             "coverage_cells": coverage_cells(*paths), "volume_x_success": top["volume"] * top["success"]}
 
 
+def phase2_figures(trainer, epoch: int, state, key, episodes: int) -> dict:
+    """The paper's phase-2 figure of a phase-2 state: its task and the greedy policy's mean
+    minimum distance to goal and success on at least ``episodes`` goals from the region."""
+    cfg = trainer.cfg
+    return {"epoch": epoch, "n": cfg.n, "eps": cfg.eps, "region": list(cfg.region),
+            "region_offset": list(cfg.region_offset), **trainer.evaluate(state, key, episodes)}
+
+
 def aggregate_runs(reports: Sequence[dict]) -> list[dict]:
     """Mean and standard error over runs (seeds) of each level's volume, success and final distance."""
     if not reports:
