@@ -96,8 +96,10 @@ class EpisodeEnd:
     ``info`` is what the start function returned for the episode, ``final_obs`` the
     observation s_n it ended in, ``reached`` whether h(s_n) was within eps of the root
     goal, ``index`` how many root episodes the environment finished before this one
-    since :func:`init_rollout` (0 for its first). Episodes cut short by a physics reset
-    are not valid.
+    since :func:`init_rollout` (0 for its first). ``valid`` rows ended normally;
+    ``cut`` rows ended because the environment was reset (physics broke or the Ant
+    flipped): their ``final_obs`` is the last observation before the resetting action
+    and ``reached`` is False. A row is at most one of the two.
     """
 
     info: Any
@@ -105,6 +107,12 @@ class EpisodeEnd:
     reached: jax.Array
     index: jax.Array
     valid: jax.Array
+    cut: jax.Array
+
+    @property
+    def ended(self) -> jax.Array:
+        """Rows where an episode ended, normally or cut short by a reset (for scoring)."""
+        return self.valid | self.cut
 
 
 @struct.dataclass
@@ -334,10 +342,11 @@ def _scan_step(h, params, start, start_params, state: RolloutState, _):
     episode_over = jnp.stack(finished)[root]
     episode_end = EpisodeEnd(
         info=state.episode,
-        final_obs=next_obs,
-        reached=jnp.stack(reached_by_level)[root],
+        final_obs=jnp.where(broke[:, None], obs, next_obs),
+        reached=jnp.stack(reached_by_level)[root] & ~broke,
         index=state.episodes_done,
         valid=episode_over & ~broke,
+        cut=episode_over & broke,
     )
 
     # 3. Environments whose root episode ended start a new one in the same step.

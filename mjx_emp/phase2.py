@@ -196,7 +196,7 @@ class Phase2Trainer:
             replay = replay_insert(replay, flatten_rows(gc_row(top)), flatten_rows(top.valid) & store)
             distance = jnp.linalg.norm(self.env.goal_of_obs(bottom.next_obs) - top.goal, axis=-1)
             running, per_step = running_min_distance(distance, bottom.valid, top.final, running)
-            counted = episodes.valid & (episodes.index == 0)
+            counted = episodes.ended & (episodes.index == 0)
             totals = (
                 totals[0] + stats.primitive_steps.astype(jnp.float32),
                 totals[1] + (top.valid & store).sum(),

@@ -345,7 +345,8 @@ class Trainer:
         episode goes to the goal-space replay. With ``fresh_replay`` the buffer an item
         fills is emptied first (the paper's fresh D per call). EVAL: nothing is stored
         (success and distance are read from each environment's first episode in every
-        mode). STARTS: continues the greedy chain; the state each level got a new goal in
+        mode; an episode a reset cut short, a flipped Ant, counts as a failure scored at
+        its last state before the reset). STARTS: continues the greedy chain; the state each level got a new goal in
         is a start state.
         """
         cfg, env, h = self.cfg, self.env, self.hierarchy
@@ -373,7 +374,7 @@ class Trainer:
                 replay_insert(replay[i], gc_row(transitions[i]), transitions[i].valid & (root == i) & (mode == MODE_GC))
                 for i in range(cfg.k)
             )
-            first_episode = episodes.valid & (episodes.index == 0)
+            first_episode = episodes.ended & (episodes.index == 0)
             gs_replay = tuple(
                 replay_insert(gs_replay[i], self._gs_row(i, episodes), episodes.valid & (root == i) & (mode == MODE_GS))
                 for i in range(cfg.k)

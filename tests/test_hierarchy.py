@@ -211,7 +211,14 @@ def test_nan_in_one_env_invalidates_its_step_and_restarts_it():
     state = jit_init_rollout(h, (None, None), START, None, jax.random.key(5), 4)
     qvel = state.env.data.qvel.at[2].set(jnp.nan)
     state = state.replace(env=state.env.replace(data=state.env.data.replace(qvel=qvel)))
-    new_state, (t0, t1), _, stats = jit_rollout(h, (None, None), START, None, state, 10)
+    new_state, (t0, t1), episodes, stats = jit_rollout(h, (None, None), START, None, state, 10)
+    # The episode the reset cut short is handed back as cut, unreached, at its last state.
+    cut = np.asarray(episodes.cut)
+    assert cut.sum() == 1 and bool(cut[0, 2]) and not np.asarray(episodes.valid)[0, 2]
+    assert not bool(episodes.reached[0, 2]) and bool(episodes.ended[0, 2])
+    np.testing.assert_array_equal(
+        ENV.goal_of_obs(episodes.final_obs[0, 2]), ENV.goal_of(jax.tree.map(lambda x: x[2], state.env))
+    )
     assert int(stats.nan_resets) == 1
     assert int(new_state.env.nan_resets[2]) == 1
     assert int(stats.useful_steps) == 4 * 10 - 1
