@@ -31,8 +31,8 @@ import mujoco
 import numpy as np
 import tyro
 
-from mjx_emp.envs import make_env
-from mjx_emp.evaluate import COVERAGE_SKILLS
+from mjx_emp.envs.env import make_env
+from mjx_emp.run.evaluate import COVERAGE_SKILLS
 
 
 @dataclasses.dataclass
@@ -121,7 +121,7 @@ def open_loop_gait_search(env, candidates: int = 300, period: int = 2, actions: 
 
 def measure_trained(run_dir: str, seed: int) -> dict:
     """Mean displacement per action of greedy top-level skills of a trained run, from the initial state."""
-    from mjx_emp import run
+    from mjx_emp.run import directory as run
 
     trainer, _, state = run.load_run(Path(run_dir))
     positions, mask = trainer.skill_paths(state, jax.random.key(seed), COVERAGE_SKILLS)

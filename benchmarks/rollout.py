@@ -26,11 +26,12 @@ import jax
 import numpy as np
 import tyro
 
-from mjx_emp._mjx import mjx
-from mjx_emp.envs import make_env
-from mjx_emp.hierarchy import Hierarchy, default_start, jit_init_rollout, jit_rollout
-from mjx_emp.networks import mlp_agent
-from mjx_emp.scripted import bounded_hop, point_mass_pd
+from mjx_emp.envs.env import make_env
+from mjx_emp.envs.mjx_quiet import mjx
+from mjx_emp.envs.scripted import bounded_hop, point_mass_pd
+from mjx_emp.nets import mlp_agent
+from mjx_emp.rollout.hierarchy import ROLLOUT_TRACE, Hierarchy, default_start, jit_init_rollout, jit_rollout
+from mjx_emp.tracing import traces
 
 # Paper-style per-level settings (Ant Field XL, k=3): n=[20,10,10], eps=[0.6,1.2,2.4].
 N_PER_LEVEL = (20, 10, 10)
@@ -94,7 +95,7 @@ def bench_group(env, batch: int, steps: int, args: Args) -> list[dict]:
         state = jit_init_rollout(h, params, start, None, jax.random.key(2), batch)
         first[k], (state, _, _, _) = _timed(jit_rollout, h, params, start, None, state, steps)
         agents[k] = [h, params, state]
-    compiled_programs = jit_rollout._cache_size()
+    compiled_programs = traces(ROLLOUT_TRACE)
 
     times = {name: [] for name in first}
     useful = {k: 0 for k in agents}
@@ -105,7 +106,7 @@ def bench_group(env, batch: int, steps: int, args: Args) -> list[dict]:
             dt, (agent[2], _, _, stats) = _timed(jit_rollout, h, params, start, None, state, steps)
             times[k].append(dt)
             useful[k] += int(stats.useful_steps)
-    recompiled = jit_rollout._cache_size() > compiled_programs
+    recompiled = traces(ROLLOUT_TRACE) > compiled_programs
 
     t_raw = statistics.median(times["raw"])
     raw_sps = batch * physics / t_raw

@@ -34,11 +34,12 @@ import jax
 import jax.numpy as jnp
 import tyro
 
-from mjx_emp.checkpoint import Checkpoints
-from mjx_emp.config import TrainConfig
-from mjx_emp.experiments.presets import PRESETS
-from mjx_emp.hierarchy import jit_init_rollout, jit_rollout
-from mjx_emp.train import MODE_GC, Trainer, _jit_train_epoch
+from mjx_emp.algos.he.agent import MODE_GC, TRAIN_EPOCH_TRACE, Trainer
+from mjx_emp.algos.he.config import TrainConfig
+from mjx_emp.algos.he.presets import PRESETS
+from mjx_emp.rollout.hierarchy import jit_init_rollout, jit_rollout
+from mjx_emp.run.checkpoint import Checkpoints
+from mjx_emp.tracing import traces
 
 
 @dataclasses.dataclass
@@ -94,9 +95,9 @@ def measure(name: str, cfg: TrainConfig, repeats: int) -> dict:
     """Compile time, warm epoch throughput and rollout-only throughput of one config."""
     trainer = Trainer(cfg)
     state = trainer.init()
-    cached = _jit_train_epoch._cache_size()
+    cached = traces(TRAIN_EPOCH_TRACE)
     first, (state, stats) = _seconds(lambda: trainer.train_epoch(state))
-    compiled = _jit_train_epoch._cache_size()
+    compiled = traces(TRAIN_EPOCH_TRACE)
 
     # The epoch donates its input state, so rollout inputs are re-read after every epoch.
     root, mode = jnp.int32(cfg.k - 1), jnp.int32(MODE_GC)
@@ -140,7 +141,7 @@ def measure(name: str, cfg: TrainConfig, repeats: int) -> dict:
         "epoch_env_steps_per_s": statistics.median(epoch_rates),
         "rollout_steps_per_s": statistics.median(rollout_rates),
         "overhead": statistics.median(ratios),
-        "recompiled": _jit_train_epoch._cache_size() > compiled,
+        "recompiled": traces(TRAIN_EPOCH_TRACE) > compiled,
         "new_programs_first_epoch": compiled - cached,
         "epoch_with_checkpoint_s": statistics.median(loaded),
         "checkpoint_added_fraction": added,

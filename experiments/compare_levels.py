@@ -2,7 +2,7 @@
 
 Trains the two-level preset for ``--epochs`` epochs, then the one-level preset (same
 bottom-level n) until it has used at least as many environment steps, and prints and
-saves both top-level goal spaces. ``python -m mjx_emp.experiments.compare_levels``.
+saves both top-level goal spaces. ``python experiments/compare_levels.py``.
 """
 
 from __future__ import annotations
@@ -15,8 +15,8 @@ from pathlib import Path
 import jax
 import tyro
 
-from mjx_emp.experiments.presets import POINT_MASS_K1, POINT_MASS_K2
-from mjx_emp.train import Trainer
+from mjx_emp.algos.he.agent import Trainer
+from mjx_emp.algos.he.presets import POINT_MASS_K1, POINT_MASS_K2
 
 
 @dataclasses.dataclass

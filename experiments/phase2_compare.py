@@ -16,7 +16,7 @@ and the 8 x 8 and 16 x 16 regions (``point-mass-wide-*``, ``point-mass-wider-*``
 3 attempts) on all three agents. Each phase-2 policy is evaluated greedily on 400 goals
 before and after training, and the figures are aggregated over seeds (mean and standard
 error).
-``python -m mjx_emp.experiments.phase2_compare --seeds 0 1 2``.
+``python experiments/phase2_compare.py --seeds 0 1 2``.
 """
 
 from __future__ import annotations
@@ -28,12 +28,11 @@ from pathlib import Path
 import jax
 import tyro
 
-from mjx_emp import run
-from mjx_emp.config import TrainConfig
-from mjx_emp.evaluate import mean_and_stderr
-from mjx_emp.experiments.phase2 import Phase2Experiment
-from mjx_emp.experiments.presets import PHASE2_PRESETS, POINT_MASS_K1, POINT_MASS_K2
-from mjx_emp.experiments.train import TrainExperiment
+from mjx_emp.algos.he.config import TrainConfig
+from mjx_emp.algos.he.presets import PHASE2_PRESETS, POINT_MASS_K1, POINT_MASS_K2
+from mjx_emp.commands import Phase2Experiment, TrainExperiment
+from mjx_emp.metrics import mean_and_stderr
+from mjx_emp.run import directory as run
 
 AGENTS: dict[str, TrainConfig] = {
     "k1": POINT_MASS_K1,

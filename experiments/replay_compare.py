@@ -5,7 +5,7 @@ an empty buffer and learn from that iteration's collection only; the library's d
 keeps ring buffers across iterations (``TrainConfig.fresh_replay``). For each preset and
 seed this trains both variants for the same number of epochs and evaluates them the
 same way as `mjx-emp eval` (top box at the initial state, greedy success on goals from
-it, coverage). ``python -m mjx_emp.experiments.replay_compare --presets point-mass-k1
+it, coverage). ``python experiments/replay_compare.py --presets point-mass-k1
 --seeds 0 1``; results go to ``--out``.
 """
 
@@ -19,9 +19,10 @@ from pathlib import Path
 import jax
 import tyro
 
-from mjx_emp.evaluate import mean_and_stderr, phase1_figures
-from mjx_emp.experiments.presets import PRESETS
-from mjx_emp.train import Trainer
+from mjx_emp.algos.he.agent import Trainer
+from mjx_emp.algos.he.presets import PRESETS
+from mjx_emp.metrics import mean_and_stderr
+from mjx_emp.run.evaluate import phase1_figures
 
 
 @dataclasses.dataclass

@@ -9,7 +9,7 @@ of goal space visited by 48 greedy top-level skills). Rows carry ``preset``, ``s
 included), ``top_area`` (m^2 for Ant, m for Half Cheetah), ``success``,
 ``coverage_cells`` and, where RUN_DIR/phase2 holds a phase-2 run (`mjx-emp phase2
 RUN_DIR`), ``phase2``: its mean minimum distance to goal and success.
-``python -m mjx_emp.experiments.robots_cpu --presets ant-field-cpu-k1 --seeds 0 1 2 3``;
+``python experiments/robots_cpu.py --presets ant-field-cpu-k1 --seeds 0 1 2 3``;
 rows are merged into ``--out`` (one per preset and seed).
 """
 
@@ -22,10 +22,10 @@ from pathlib import Path
 import jax
 import tyro
 
-from mjx_emp import run
-from mjx_emp.evaluate import phase1_figures, phase2_figures
-from mjx_emp.experiments.presets import PRESETS
-from mjx_emp.experiments.train import ResumeExperiment, TrainExperiment
+from mjx_emp.algos.he.presets import PRESETS
+from mjx_emp.commands import ResumeExperiment, TrainExperiment
+from mjx_emp.run import directory as run
+from mjx_emp.run.evaluate import phase1_figures, phase2_figures
 
 
 @dataclasses.dataclass

@@ -12,16 +12,20 @@ from pathlib import Path
 
 import tyro
 
-from mjx_emp import run
-from mjx_emp.config import ConfigError, check_levels
-from mjx_emp.experiments.evaluate import EvalExperiment
-from mjx_emp.experiments.phase2 import Phase2Experiment
-from mjx_emp.experiments.plot import PlotExperiment
-from mjx_emp.experiments.presets import PHASE2_PRESETS, PRESETS, phase2_preset_for
-from mjx_emp.experiments.render import RenderExperiment
-from mjx_emp.experiments.rollout import RolloutExperiment
-from mjx_emp.experiments.train import ResumeExperiment, TrainExperiment
-from mjx_emp.run import main_guarded
+from mjx_emp.algos.he.presets import PHASE2_PRESETS, PRESETS, phase2_preset_for
+from mjx_emp.checks import check_levels
+from mjx_emp.commands import (
+    EvalExperiment,
+    Phase2Experiment,
+    PlotExperiment,
+    RenderExperiment,
+    ResumeExperiment,
+    RolloutExperiment,
+    TrainExperiment,
+)
+from mjx_emp.errors import ConfigError
+from mjx_emp.run import directory as run
+from mjx_emp.run.directory import main_guarded
 
 
 def validate_rollout(cfg: RolloutExperiment) -> None:
@@ -43,9 +47,9 @@ def run_rollout(cfg: RolloutExperiment) -> dict:
     """Roll out a random-init k-level agent; return per-level statistics and throughput."""
     import jax  # deferred: keeps `--help` fast
 
-    from mjx_emp.envs import make_env
-    from mjx_emp.hierarchy import Hierarchy, default_start, jit_init_rollout, jit_rollout
-    from mjx_emp.networks import mlp_agent
+    from mjx_emp.envs.env import make_env
+    from mjx_emp.nets import mlp_agent
+    from mjx_emp.rollout.hierarchy import Hierarchy, default_start, jit_init_rollout, jit_rollout
 
     env = make_env(cfg.env)
     key = jax.random.key(cfg.seed)
@@ -103,7 +107,7 @@ def rollout(cfg: RolloutExperiment) -> None:
 
 def plot(exp: PlotExperiment) -> None:
     """Draw a run's pictures into RUN_DIR/plots/ and print their paths."""
-    from mjx_emp.plots import plot_run
+    from mjx_emp.viz.plots import plot_run
 
     run_dir = Path(exp.run_dir)
     if not (run_dir / run.METRICS_FILE).exists():
@@ -121,7 +125,7 @@ def render(exp: RenderExperiment) -> None:
         raise ConfigError(f"fps: must be > 0; got {exp.fps}")
     import jax
 
-    from mjx_emp.render import record_phase2, record_skill_chain, render_frames, write_gif
+    from mjx_emp.viz.render import record_phase2, record_skill_chain, render_frames, write_gif
 
     if exp.phase2:
         phase2_dir = Path(exp.run_dir) / run.PHASE2_SUBDIR
@@ -149,14 +153,8 @@ def evaluate(exp: EvalExperiment) -> dict:
         raise ConfigError(f"episodes: must be >= 1; got {exp.episodes}")
     import jax
 
-    from mjx_emp.evaluate import (
-        COVERAGE_SKILLS,
-        aggregate_agent,
-        aggregate_phase2,
-        aggregate_runs,
-        phase1_figures,
-        phase2_figures,
-    )
+    from mjx_emp.metrics import aggregate_agent, aggregate_phase2, aggregate_runs
+    from mjx_emp.run.evaluate import COVERAGE_SKILLS, phase1_figures, phase2_figures
 
     runs = []
     for run_dir in exp.run_dirs:
@@ -247,7 +245,7 @@ def main(argv: list[str] | None = None) -> None:
     """
     argv = sys.argv[1:] if argv is None else list(argv)
     if argv[:1] == ["render"]:
-        from mjx_emp.render import configure_headless_gl
+        from mjx_emp.viz.render import configure_headless_gl
 
         configure_headless_gl()  # before anything imports mujoco
     if argv[:1] == ["presets"]:

@@ -18,3 +18,4 @@ os.environ["JAX_COMPILATION_CACHE_DIR"] = _CACHE
 os.environ["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] = "1"
 
 sys.path.insert(0, str(Path(__file__).parent))  # shared helpers such as tiny.py
+sys.path.insert(0, str(Path(__file__).parents[1] / "experiments"))  # the experiment scripts

@@ -17,10 +17,12 @@ import pytest
 from tiny import SMALL, TINY, mjx_emp, run_cli, tiny_after_two_epochs, tiny_trainer
 
 from mjx_emp import cli
-from mjx_emp.checkpoint import Checkpoints, CheckpointError, layout_of, layout_mismatch, pack, unpack
-from mjx_emp.config import config_from_dict
-from mjx_emp.run import TrainingDiverged, keep_metrics_through, train_epochs
-from mjx_emp.train import Trainer
+from mjx_emp.algos.he.agent import Trainer
+from mjx_emp.algos.he.config import TrainConfig
+from mjx_emp.checks import config_from_dict
+from mjx_emp.errors import CheckpointError, TrainingDiverged
+from mjx_emp.run.checkpoint import Checkpoints, layout_mismatch, layout_of, pack, unpack
+from mjx_emp.run.directory import keep_metrics_through, train_epochs
 
 
 def host_leaves(tree) -> list[np.ndarray]:
@@ -144,7 +146,7 @@ def kill_when(process: subprocess.Popen, ready, timeout: float = 300) -> None:
 
 
 def final_state(run_dir: Path, epoch: int):
-    cfg = config_from_dict(json.loads((run_dir / "config.json").read_text()))
+    cfg = config_from_dict(json.loads((run_dir / "config.json").read_text()), TrainConfig)
     with Checkpoints(run_dir) as checkpoints:
         assert epoch in checkpoints.epochs()
         return checkpoints.restore(epoch, jax.eval_shape(Trainer(cfg).init), cfg)

@@ -6,7 +6,8 @@ import mujoco
 import numpy as np
 import pytest
 
-from mjx_emp.envs import DOMAINS, make_env
+from mjx_emp.envs.env import make_env
+from mjx_emp.envs.registry import DOMAINS
 
 
 def torso_position(env, state) -> np.ndarray:

@@ -3,20 +3,13 @@
 from __future__ import annotations
 
 import json
-import math
 
 import numpy as np
 import pytest
 
-from mjx_emp.evaluate import (
-    aggregate_phase2,
-    aggregate_runs,
-    coverage_cells,
-    mean_and_stderr,
-    running_min_distance,
-)
 from mjx_emp import cli
-from mjx_emp.plots import plot_goal_space_boxes, plot_goal_space_growth, plot_phase2_curves
+from mjx_emp.metrics import aggregate_phase2, aggregate_runs, coverage_cells, mean_and_stderr, running_min_distance
+from mjx_emp.viz.plots import plot_goal_space_boxes, plot_goal_space_growth, plot_phase2_curves
 
 
 def _distances(positions, goals):

@@ -7,17 +7,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from mjx_emp.envs import make_env
-from mjx_emp.hierarchy import (
-    Hierarchy,
-    _decide,
-    decision_buckets,
-    default_start,
-    jit_init_rollout,
-    jit_rollout,
-)
-from mjx_emp.networks import mlp_agent
-from mjx_emp.scripted import bounded_hop, point_mass_pd
+from mjx_emp.envs.env import make_env
+from mjx_emp.envs.scripted import bounded_hop, point_mass_pd
+from mjx_emp.nets import mlp_agent
+from mjx_emp.rollout.hierarchy import Hierarchy, decide, decision_buckets, default_start, jit_init_rollout, jit_rollout
 
 ENV = make_env("point_mass")
 START = default_start(ENV, goal_half_width=3.0)
@@ -248,7 +241,7 @@ def test_gathered_decisions_equal_full_batch_decisions(count):
     keys = jax.random.split(jax.random.key(3), batch)
     need = jnp.zeros(batch, bool).at[jax.random.permutation(jax.random.key(4), batch)[:count]].set(True)
     old = jnp.full((batch, 2), 7.0)
-    new, n = jax.jit(lambda nd: _decide(policy, params, obs, goals, keys, nd, old))(need)
+    new, n = jax.jit(lambda nd: decide(policy, params, obs, goals, keys, nd, old))(need)
     full = jax.vmap(policy, (None, 0, 0, 0))(params, obs, goals, keys)
     expected = jnp.where(need[:, None], full, old)
     np.testing.assert_allclose(new, expected, rtol=1e-5, atol=1e-6)

@@ -5,8 +5,8 @@ import os
 import jax
 import pytest
 
-from mjx_emp.experiments.presets import POINT_MASS_K1
-from mjx_emp.train import Trainer
+from mjx_emp.algos.he.agent import Trainer
+from mjx_emp.algos.he.presets import POINT_MASS_K1
 
 
 def test_point_mass_default_grows_its_goal_space_and_reaches_it():
@@ -24,7 +24,7 @@ def test_point_mass_default_grows_its_goal_space_and_reaches_it():
 @pytest.mark.skipif(os.environ.get("MJX_EMP_SLOW") != "1",
                     reason="about 13 minutes of CPU; run with MJX_EMP_SLOW=1")
 def test_two_levels_learn_a_larger_top_goal_space_than_one_for_the_same_env_steps():
-    from mjx_emp.experiments.compare_levels import compare
+    from compare_levels import compare
 
     result = compare()
     two, one = result["k2"], result["k1"]

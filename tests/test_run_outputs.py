@@ -10,8 +10,9 @@ import pytest
 from PIL import Image
 from tiny import SMALL, run_cli
 
-from mjx_emp import checkpoint, run
-from mjx_emp.render import Recording, first_skills, marker_position
+from mjx_emp.run import checkpoint
+from mjx_emp.run import directory as run
+from mjx_emp.viz.render import Recording, first_skills, marker_position
 
 
 def test_a_recording_is_cut_where_its_top_level_skills_end():
@@ -130,7 +131,7 @@ def test_eval_reports_every_level_and_phase2_and_aggregates_runs_as_seeds(traine
     first = report["runs"][0]
     assert first["coverage_cells"] >= 1 and report["coverage_cells"]["count"] == 2
     assert first["volume_x_success"] == pytest.approx(first["levels"][0]["volume"] * first["levels"][0]["success"])
-    assert f"coverage (48 greedy top-level skills" in result.stdout
+    assert "coverage (48 greedy top-level skills" in result.stdout
     phase2 = report["runs"][0]["phase2"]
     assert phase2["episodes"] == 16 and phase2["eps"] == 0.6 and phase2["min_distance"] >= 0.0
     assert report["phase2"]["min_distance"]["count"] == 2 and report["phase2"]["min_distance"]["stderr"] == 0.0

@@ -9,25 +9,16 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from tiny import TINY, tiny_after_two_epochs, tiny_trainer
 
 from mjx_emp import gce
-from mjx_emp.config import ConfigError, TrainConfig
-from mjx_emp.envs import make_env
-from mjx_emp.networks import greedy_batch
-from mjx_emp.train import (
-    MODE_EVAL,
-    MODE_GC,
-    MODE_GS,
-    MODE_STARTS,
-    GCRow,
-    GCLearner,
-    Trainer,
-    ddpg_losses,
-    epoch_schedule,
-    relabel_goals,
-    reward_cap,
-)
-from tiny import TINY, tiny_after_two_epochs, tiny_trainer
+from mjx_emp.algos.he.agent import MODE_EVAL, MODE_GC, MODE_GS, MODE_STARTS, TRAIN_EPOCH_TRACE, Trainer, epoch_schedule
+from mjx_emp.algos.he.config import TrainConfig
+from mjx_emp.envs.env import make_env
+from mjx_emp.errors import ConfigError
+from mjx_emp.learners.ddpg import GCLearner, GCRow, ddpg_losses, relabel_goals, reward_cap
+from mjx_emp.nets import greedy_batch
+from mjx_emp.tracing import traces
 
 
 def test_schedule_follows_the_appendix_per_level():
@@ -60,13 +51,12 @@ def test_goal_space_actor_starts_at_the_initial_box_and_respects_its_bound():
 
 
 def test_gc_update_moves_targets_by_tau_and_only_its_level():
-    trainer = tiny_trainer()
     cfg = TINY
     trainer_one_step = Trainer(TrainConfig(**{**cfg.__dict__, "gc_grad_steps": 1}))
     state = trainer_one_step.init()
     state, _ = trainer_one_step.train_epoch(state)  # fills the replay buffers
     before = state.gc
-    (gcs, gss), losses = trainer_one_step._gc_update(1)((state.gc, state.gs), state.replay, state.gs_replay,
+    (gcs, gss), losses = trainer_one_step.gc_update(1)((state.gc, state.gs), state.replay, state.gs_replay,
                                                          jax.random.key(0))
     assert np.all(np.isfinite(np.asarray(losses)))
     for new, old, target in zip(jax.tree.leaves(gcs[1].critic), jax.tree.leaves(before[1].target_critic),
@@ -247,3 +237,13 @@ def test_restore_round_trips_observations():
 def test_bad_train_config_names_the_field(change, field):
     with pytest.raises(ConfigError, match=field):
         Trainer(TrainConfig(**{**TINY.__dict__, **change}))
+
+
+def test_trainers_of_equal_configs_share_one_compiled_epoch():
+    trainer, _, state, _, _ = tiny_after_two_epochs()
+    twin = Trainer(dataclasses.replace(TINY))
+    assert twin is not trainer and twin == trainer and hash(twin) == hash(trainer)
+    before = traces(TRAIN_EPOCH_TRACE)
+    twin.train_epoch(jax.tree.map(jnp.copy, state))
+    assert traces(TRAIN_EPOCH_TRACE) == before, "an equal config recompiled the epoch"
+    assert Trainer(dataclasses.replace(TINY, seed=TINY.seed + 1)) != trainer

@@ -9,8 +9,9 @@ import sys
 import jax
 import numpy as np
 
-from mjx_emp.config import Phase2Config, TrainConfig
-from mjx_emp.train import Trainer, _jit_train_epoch
+from mjx_emp.algos.he.agent import TRAIN_EPOCH_TRACE, Trainer
+from mjx_emp.algos.he.config import Phase2Config, TrainConfig
+from mjx_emp.tracing import traces
 
 TINY = TrainConfig(
     env="point_mass", n=(3, 2), sigma_gc=(0.4, 0.8), sigma_gs=(0.4, 0.8), eps=(0.3, 0.6),
@@ -36,9 +37,9 @@ def tiny_after_two_epochs():
     state = trainer.init()
     initial = jax.tree.map(np.asarray, state.gs[0].actor)
     state, first = trainer.train_epoch(state)
-    compiled = _jit_train_epoch._cache_size()
+    compiled = traces(TRAIN_EPOCH_TRACE)
     state, second = trainer.train_epoch(state)
-    assert _jit_train_epoch._cache_size() == compiled, "epoch 2 recompiled"
+    assert traces(TRAIN_EPOCH_TRACE) == compiled, "epoch 2 recompiled"
     return trainer, initial, state, first, second
 
 

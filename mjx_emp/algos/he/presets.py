@@ -39,7 +39,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from mjx_emp.config import Phase2Config, TrainConfig
+from mjx_emp.algos.he.config import Phase2Config, TrainConfig
 
 _PAPER = dict(
     num_envs=4096, batch_size=1024, hidden=(256, 256), replay_capacity=500_000,

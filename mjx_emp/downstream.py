@@ -30,22 +30,19 @@ import numpy as np
 import optax
 from flax import struct
 
-from mjx_emp.buffers import ReplayBuffer, flatten_rows, replay_init, replay_insert, replay_sample
-from mjx_emp.config import Phase2Config, check_phase2_config
-from mjx_emp.evaluate import running_min_distance
-from mjx_emp.hierarchy import Hierarchy, Params, init_rollout, rollout
-from mjx_emp.networks import MLP, LevelParams, goal_conditioned_q, goal_features, greedy_batch, level_policy
-from mjx_emp.train import (
-    GCLearner,
-    GCRow,
-    Trainer,
-    TrainState,
-    all_finite,
-    ddpg_losses,
-    epoch_header,
-    gc_learner_step,
-    gc_row,
-)
+from mjx_emp.algos.he.agent import Trainer, TrainState
+from mjx_emp.algos.he.config import Phase2Config, check_phase2_config
+from mjx_emp.learners.common import all_finite
+from mjx_emp.learners.ddpg import GCLearner, GCRow, ddpg_losses, gc_learner_step, gc_row
+from mjx_emp.metrics import epoch_header, running_min_distance
+from mjx_emp.nets import MLP, LevelParams, goal_conditioned_q, goal_features, greedy_batch, level_policy
+from mjx_emp.replay import ReplayBuffer, flatten_rows, replay_init, replay_insert, replay_sample
+from mjx_emp.rollout.collect import CollectTotals, collect
+from mjx_emp.rollout.hierarchy import Hierarchy, Params, init_rollout
+from mjx_emp.tracing import count_trace
+
+TRAIN_EPOCH_TRACE = "downstream.train_epoch"
+"""Name under which :mod:`mjx_emp.tracing` counts traces (compiles) of the phase-2 epoch."""
 
 
 @struct.dataclass
@@ -79,16 +76,17 @@ class Phase2Stats:
     actor_loss: jax.Array
 
 
-@dataclasses.dataclass(frozen=True, eq=False)
+@dataclasses.dataclass(frozen=True)
 class Phase2Trainer:
     """Static side of phase 2: the skill agent, the added level's networks, the k+1-level rollout.
 
-    Build it once per (phase-1 config, phase-2 config); it is a static jit argument.
+    A static jit argument that hashes and compares by its two configs (phase 1's and
+    phase 2's), so equal configs share compiled programs.
     """
 
     skills: Trainer
     cfg: Phase2Config
-    hierarchy: Hierarchy = dataclasses.field(init=False)
+    hierarchy: Hierarchy = dataclasses.field(init=False, compare=False, repr=False)
 
     def __post_init__(self):
         check_phase2_config(self.cfg, self.skills.env.goal_size)
@@ -176,43 +174,30 @@ class Phase2Trainer:
     def _collect(self, state: Phase2State, noise: jax.Array, store: jax.Array, key: jax.Array):
         """Run num_envs episodes (each environment to the end of its first at least).
 
-        Where ``store``, every attempt goes to the replay. Returns the new state and
-        (env steps, stored transitions, first episodes, their success rate, their mean
-        minimum distance to goal).
+        Where ``store``, every attempt goes to the replay. Returns the new state and the
+        call's :class:`CollectTotals`; ``distance`` sums each first episode's minimum
+        distance to goal.
         """
         h, k, chunk_steps = self.hierarchy, self.level, self.skills.cfg.chunk_steps
         params = self.rollout_params(state, noise)
         first = init_rollout(h, params, self.start, None, key, self.cfg.num_envs, k)
-        zero = jnp.zeros((), jnp.float32)
 
-        def unfinished(carry):
-            rs, _, _, chunks, _ = carry
-            return (chunks < self.max_chunks()) & jnp.any(rs.episodes_done == 0)
-
-        def chunk(carry):
-            rs, replay, running, chunks, totals = carry
-            rs, transitions, episodes, stats = rollout(h, params, self.start, None, rs, chunk_steps)
+        def absorb(kept, transitions, episodes, stats):
+            replay, running, totals = kept
             top, bottom = transitions[k], transitions[0]
             replay = replay_insert(replay, flatten_rows(gc_row(top)), flatten_rows(top.valid) & store)
             distance = jnp.linalg.norm(self.env.goal_of_obs(bottom.next_obs) - top.goal, axis=-1)
             running, per_step = running_min_distance(distance, bottom.valid, top.final, running)
             counted = episodes.ended & (episodes.index == 0)
-            totals = (
-                totals[0] + stats.primitive_steps.astype(jnp.float32),
-                totals[1] + (top.valid & store).sum(),
-                totals[2] + counted.sum(),
-                totals[3] + (counted & episodes.reached).sum(),
-                totals[4] + jnp.where(counted, per_step, 0.0).sum(),
-            )
-            return rs, replay, running, chunks + 1, totals
+            totals = totals.add(stats, top.valid & store, counted, episodes.reached, per_step)
+            return replay, running, totals
 
         running = jnp.full(self.cfg.num_envs, jnp.inf)
-        carry = (first, state.replay, running, jnp.zeros((), jnp.int32),
-                 (zero, jnp.int32(0), jnp.int32(0), jnp.int32(0), zero))
-        _, replay, _, _, totals = jax.lax.while_loop(unfinished, chunk, carry)
-        state = state.replace(replay=replay, env_steps=state.env_steps + totals[0])
-        episodes = jnp.maximum(totals[2], 1)
-        return state, (totals[0], totals[1], totals[2], totals[3] / episodes, totals[4] / episodes)
+        _, (replay, _, totals) = collect(
+            h, params, self.start, None, first, chunk_steps, self.max_chunks(), absorb,
+            (state.replay, running, CollectTotals.zero()),
+        )
+        return state.replace(replay=replay, env_steps=state.env_steps + totals.env_steps), totals
 
     # ---- learning -------------------------------------------------------------------
     def losses(self, learner: GCLearner, box: Params, batch: GCRow):
@@ -236,20 +221,20 @@ class Phase2Trainer:
         return state.replace(learner=learner), losses.mean(axis=0)
 
     def _train_epoch(self, state: Phase2State) -> tuple[Phase2State, Phase2Stats]:
+        count_trace(TRAIN_EPOCH_TRACE)
         cfg = self.cfg
 
         def item(state: Phase2State, train: jax.Array):
             key, collect_key, update_key = jax.random.split(state.key, 3)
             noise = jnp.where(train, cfg.action_noise, 0.0)
-            state, (steps, transitions, episodes, success, distance) = self._collect(
-                state.replace(key=key), noise, train, collect_key
-            )
+            state, totals = self._collect(state.replace(key=key), noise, train, collect_key)
             state, losses = jax.lax.cond(
                 train, self._update, lambda s, _: (s, jnp.full(2, jnp.nan)), state, update_key
             )
             stats = Phase2Stats(
-                train=train, env_steps=steps, transitions=transitions, episodes=episodes, success=success,
-                min_distance=distance, critic_loss=losses[0], actor_loss=losses[1],
+                train=train, env_steps=totals.env_steps, transitions=totals.transitions,
+                episodes=totals.episodes, success=totals.success(), min_distance=totals.mean_distance(),
+                critic_loss=losses[0], actor_loss=losses[1],
             )
             return state, stats
 
@@ -278,8 +263,8 @@ class Phase2Trainer:
 
     def _evaluate(self, state: Phase2State, key: jax.Array, rounds: int):
         def one(_, round_key):
-            _, (_, _, episodes, success, distance) = self._collect(state, jnp.zeros(()), jnp.bool_(False), round_key)
-            return None, (episodes, success, distance)
+            _, totals = self._collect(state, jnp.zeros(()), jnp.bool_(False), round_key)
+            return None, (totals.episodes, totals.success(), totals.mean_distance())
 
         _, figures = jax.lax.scan(one, None, jax.random.split(key, rounds))
         return figures

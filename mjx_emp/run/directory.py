@@ -20,26 +20,16 @@ import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
-from mjx_emp.config import (
-    ConfigError,
-    Phase2Config,
-    TrainConfig,
-    check_phase2_config,
-    check_train_config,
-    config_from_dict,
-)
-from mjx_emp.experiments.phase2 import Phase2Experiment
-from mjx_emp.experiments.train import ResumeExperiment, TrainExperiment
+from mjx_emp.algos.he.config import Phase2Config, TrainConfig, check_phase2_config, check_train_config
+from mjx_emp.checks import config_from_dict
+from mjx_emp.commands import Phase2Experiment, ResumeExperiment, TrainExperiment
+from mjx_emp.errors import CheckpointError, ConfigError, RenderError, TrainingDiverged
 
 CONFIG_FILE = "config.json"
 METRICS_FILE = "metrics.jsonl"
 PHASE2_SUBDIR = "phase2"
 SKILLS_FILE = "skills.json"
 """In a phase-2 directory: the phase-1 config of the skills it builds on."""
-
-
-class TrainingDiverged(RuntimeError):
-    """An epoch produced a non-finite loss or parameter; the run stopped before keeping it."""
 
 
 def default_run_dir(cfg: TrainConfig) -> str:
@@ -154,7 +144,7 @@ def train_epochs(trainer, state, checkpoints, run_dir: Path, report: Callable[[d
 
 
 def _holds_a_run(run_dir: Path) -> bool:
-    from mjx_emp.checkpoint import CHECKPOINT_SUBDIR
+    from mjx_emp.run.checkpoint import CHECKPOINT_SUBDIR
 
     return (run_dir / METRICS_FILE).exists() or (run_dir / CHECKPOINT_SUBDIR).exists()
 
@@ -183,7 +173,7 @@ def _fresh_run_dir(path: str, field: str, what: str, command: str) -> Path:
 
 def _train_new(trainer, state, run_dir: Path, keep_checkpoints: int, config_type: type):
     """Write the config, checkpoint ``state`` as epoch 0, and train to the end."""
-    from mjx_emp.checkpoint import Checkpoints
+    from mjx_emp.run.checkpoint import Checkpoints
 
     write_atomically(run_dir / CONFIG_FILE, json.dumps(dataclasses.asdict(trainer.cfg), indent=1))
     checkpoints = Checkpoints(run_dir, keep_checkpoints, config_type)
@@ -196,7 +186,7 @@ def start(exp: TrainExperiment):
     check_train_config(exp.config)
     _check_keep(exp.keep_checkpoints)
     run_dir = _fresh_run_dir(exp.run_dir or default_run_dir(exp.config), "run_dir", "a run", "mjx-emp train")
-    from mjx_emp.train import Trainer
+    from mjx_emp.algos.he.agent import Trainer
 
     print(f"run directory: {run_dir}", flush=True)
     trainer = Trainer(exp.config)
@@ -212,8 +202,8 @@ def load_run(run_dir: Path, fallback: bool = False, epochs: int | None = None, f
     """
     import jax
 
-    from mjx_emp.checkpoint import Checkpoints
-    from mjx_emp.train import Trainer
+    from mjx_emp.algos.he.agent import Trainer
+    from mjx_emp.run.checkpoint import Checkpoints
 
     cfg = read_run_config(Path(run_dir), field)
     if epochs is not None:
@@ -236,7 +226,7 @@ def _resume(exp: ResumeExperiment, load: Callable, config_type: type):
     _check_keep(exp.keep_checkpoints)
     run_dir = Path(exp.resume)
     trainer, epoch, state = load(run_dir, exp.fallback, exp.epochs, field="resume")
-    from mjx_emp.checkpoint import Checkpoints
+    from mjx_emp.run.checkpoint import Checkpoints
 
     print(f"resuming {run_dir} from epoch {epoch}", flush=True)
     keep_metrics_through(run_dir / METRICS_FILE, epoch)
@@ -256,7 +246,7 @@ def start_phase2(exp: Phase2Experiment):
     _check_keep(exp.keep_checkpoints)
     if not exp.run_dir:
         raise ConfigError("run_dir: give the phase-1 run directory, e.g. `mjx-emp phase2 runs/pm1`")
-    from mjx_emp.phase2 import Phase2Trainer
+    from mjx_emp.downstream import Phase2Trainer
 
     requested = None if exp.config.phase1_epoch < 0 else exp.config.phase1_epoch
     skills, epoch, skills_state = load_run(Path(exp.run_dir), field="run_dir", epoch=requested)
@@ -275,9 +265,9 @@ def load_phase2(phase2_dir: Path, fallback: bool = False, epochs: int | None = N
     """
     import jax
 
-    from mjx_emp.checkpoint import Checkpoints
-    from mjx_emp.phase2 import Phase2Trainer
-    from mjx_emp.train import Trainer
+    from mjx_emp.algos.he.agent import Trainer
+    from mjx_emp.downstream import Phase2Trainer
+    from mjx_emp.run.checkpoint import Checkpoints
 
     phase2_dir = Path(phase2_dir)
     cfg = read_run_config(phase2_dir, field, Phase2Config)
@@ -299,9 +289,6 @@ def resume_phase2(exp: ResumeExperiment):
 
 def main_guarded(command: Callable, exp) -> None:
     """Run a CLI command; bad input exits 2, divergence 1, no offscreen GL 3, each with a reason."""
-    from mjx_emp.checkpoint import CheckpointError
-    from mjx_emp.render import RenderError
-
     failures = (
         (ConfigError, "invalid configuration", 2),
         (CheckpointError, "unusable checkpoint", 2),

@@ -25,16 +25,14 @@ import jax.numpy as jnp
 import numpy as np
 import orbax.checkpoint as ocp
 
-from mjx_emp.config import TrainConfig, config_from_dict
+from mjx_emp.algos.he.config import TrainConfig
+from mjx_emp.checks import config_from_dict
+from mjx_emp.errors import CheckpointError
 
 CHECKPOINT_SUBDIR = "checkpoints"
 REJECTED_SUBDIR = "rejected-checkpoints"
 RESUMABLE_CHANGES = ("epochs",)
 """Config fields a resumed run may change: they do not alter what one epoch computes."""
-
-
-class CheckpointError(RuntimeError):
-    """A checkpoint cannot be used; the message names the file and what is wrong with it."""
 
 
 def _is_key(leaf: Any) -> bool:

@@ -12,7 +12,6 @@ does is expressed where it is.
 from __future__ import annotations
 
 import math
-
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -21,8 +20,8 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from mjx_emp.envs import Env
-from mjx_emp.hierarchy import LevelPolicy, Params
+from mjx_emp.envs.env import Env
+from mjx_emp.rollout.hierarchy import LevelPolicy, Params
 
 # (box_params, obs) -> (shift, half_width): the box a level's actions are squashed into.
 BoxFn = Callable[[Any, jax.Array], tuple[jax.Array, jax.Array]]

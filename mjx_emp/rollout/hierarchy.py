@@ -39,9 +39,13 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from mjx_emp.config import ConfigError, check_levels
-from mjx_emp.envs import Env, EnvState, tree_where
+from mjx_emp.checks import check_levels
+from mjx_emp.envs.env import Env, EnvState, tree_where
+from mjx_emp.errors import ConfigError
+from mjx_emp.tracing import count_trace
 
+ROLLOUT_TRACE = "rollout"
+"""Name under which :mod:`mjx_emp.tracing` counts traces of :func:`rollout`."""
 Params = Any
 # (params, obs, goal, key) -> action, for ONE environment. Level 0 returns a primitive
 # action in [-1, 1]^nu; level i > 0 returns a subgoal relative to h(s) (goal-space size).
@@ -180,7 +184,7 @@ def decision_buckets(batch: int, smallest: int = 8) -> tuple[int, ...]:
     return tuple(sizes) + (batch,)
 
 
-def _decide(
+def decide(
     policy: LevelPolicy,
     params: Params,
     obs: jax.Array,
@@ -239,7 +243,7 @@ def _issue_subgoals(
     decisions = [jnp.zeros((), jnp.int32) for _ in range(h.k)]
     for i in range(h.k - 1, 0, -1):
         need = finished[i - 1] & (i <= root)
-        z, decisions[i] = _decide(
+        z, decisions[i] = decide(
             h.policies[i], params[i], obs, goals[i], keys[i], need, issued_action[i]
         )
         issued_action[i] = z
@@ -402,6 +406,7 @@ def rollout(
     keep one ``Hierarchy`` and one ``start`` function object per agent: a freshly built
     closure compiles anew.
     """
+    count_trace(ROLLOUT_TRACE)
     nan_before, flips_before = state.env.nan_resets.sum(), state.env.flip_resets.sum()
 
     def body(carry, x):

@@ -1,4 +1,4 @@
-"""Configuration checks shared by the library and the CLI.
+"""Hierarchical Empowerment's configs: phase 1 (TrainConfig) and phase 2 (Phase2Config).
 
 Plain Python (no JAX import), so the CLI can reject bad input before compiling anything.
 """
@@ -6,26 +6,10 @@ Plain Python (no JAX import), so the CLI can reject bad input before compiling a
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Sequence
 
-
-class ConfigError(ValueError):
-    """A configuration value is invalid; the message names the field and what it allows."""
-
-
-def check_levels(n: Sequence[int], eps: Sequence[float], k: int | None = None) -> None:
-    """Validate per-level n and eps for a k-level agent (k defaults to len(n))."""
-    k = len(n) if k is None else k
-    if k < 1:
-        raise ConfigError("n: give at least one level (k >= 1), e.g. --n 20 10")
-    if len(n) != k or len(eps) != k:
-        raise ConfigError(
-            f"n and eps: need one entry per level (k={k}); got n={tuple(n)}, eps={tuple(eps)}"
-        )
-    if any(int(v) != v or v < 1 for v in n):
-        raise ConfigError(f"n: every entry must be an integer >= 1; got {tuple(n)}")
-    if any(not v > 0 for v in eps):
-        raise ConfigError(f"eps: every entry must be > 0; got {tuple(eps)}")
+from mjx_emp.checks import check_counts, check_learning, check_levels
+from mjx_emp.envs.registry import DOMAINS
+from mjx_emp.errors import ConfigError
 
 
 @dataclasses.dataclass(frozen=True)
@@ -131,8 +115,6 @@ _POSITIVE = ("epochs", "num_envs", "chunk_steps", "gc_iterations", "gc_grad_step
 
 def check_train_config(cfg: TrainConfig) -> None:
     """Raise ConfigError naming the first invalid field of ``cfg`` and what it allows."""
-    from mjx_emp.envs import DOMAINS  # imports JAX; kept out of the module's import
-
     if cfg.env not in DOMAINS:
         raise ConfigError(f"env: {cfg.env!r} is unknown; allowed values: {sorted(DOMAINS)}")
     check_levels(cfg.n, cfg.eps)
@@ -142,7 +124,7 @@ def check_train_config(cfg: TrainConfig) -> None:
             raise ConfigError(f"{name}: need one entry per level (k={cfg.k} from n); got {value}")
         if any(not v > 0 for v in value):
             raise ConfigError(f"{name}: every entry must be > 0; got {value}")
-    _check_counts(cfg, _POSITIVE)
+    check_counts(cfg, _POSITIVE)
     for level, (start, bound) in enumerate(zip(cfg.init_half_width, cfg.max_half_width)):
         if not start < bound:
             raise ConfigError(
@@ -151,40 +133,10 @@ def check_train_config(cfg: TrainConfig) -> None:
             )
     if cfg.eval_iterations < 0:
         raise ConfigError(f"eval_iterations: must be >= 0; got {cfg.eval_iterations}")
-    _check_learning(cfg, ("actor_lr", "critic_lr", "gs_actor_lr", "gs_critic_lr"),
+    check_learning(cfg, ("actor_lr", "critic_lr", "gs_actor_lr", "gs_critic_lr"),
                     ("action_noise", "goal_noise", "gs_noise"))
     if not 0 <= cfg.relabel <= 1:
         raise ConfigError(f"relabel: a fraction in [0, 1]; got {cfg.relabel}")
-
-
-def _check_counts(cfg, names: tuple[str, ...]) -> None:
-    """Every named field (a count or size) is >= 1."""
-    for name in names:
-        if getattr(cfg, name) < 1:
-            raise ConfigError(f"{name}: must be >= 1; got {getattr(cfg, name)}")
-
-
-def _check_learning(cfg, learning_rates: tuple[str, ...], noises: tuple[str, ...]) -> None:
-    """The actor-critic settings both phases share: hidden widths, rates, tau, gamma, noise stds."""
-    if not cfg.hidden or any(w < 1 for w in cfg.hidden):
-        raise ConfigError(f"hidden: give one or more widths >= 1; got {cfg.hidden}")
-    for name in (*learning_rates, "tau"):
-        if not 0 < getattr(cfg, name) <= 1:
-            raise ConfigError(f"{name}: must be in (0, 1]; got {getattr(cfg, name)}")
-    if not 0 <= cfg.gamma < 1:
-        raise ConfigError(f"gamma: must be in [0, 1); got {cfg.gamma}")
-    for name in noises:
-        if getattr(cfg, name) < 0:
-            raise ConfigError(f"{name}: must be >= 0; got {getattr(cfg, name)}")
-
-
-def config_from_dict(values: dict, config_type: type = TrainConfig):
-    """Rebuild a config dataclass from its JSON form (lists back to tuples); unknown fields are an error."""
-    fields = {f.name: f for f in dataclasses.fields(config_type)}
-    unknown = sorted(set(values) - set(fields))
-    if unknown:
-        raise ConfigError(f"{unknown[0]}: not a {config_type.__name__} field; allowed: {sorted(fields)}")
-    return config_type(**{name: tuple(v) if isinstance(v, list) else v for name, v in values.items()})
 
 
 @dataclasses.dataclass(frozen=True)
@@ -247,7 +199,7 @@ _P2_POSITIVE = ("n", "epochs", "num_envs", "iterations", "grad_steps", "batch_si
 
 def check_phase2_config(cfg: Phase2Config, goal_size: int | None = None) -> None:
     """Raise ConfigError naming the first invalid field of ``cfg`` (``goal_size``: the domain's)."""
-    _check_counts(cfg, _P2_POSITIVE)
+    check_counts(cfg, _P2_POSITIVE)
     for name in ("eps", "sigma"):
         if not getattr(cfg, name) > 0:
             raise ConfigError(f"{name}: must be > 0; got {getattr(cfg, name)}")
@@ -258,6 +210,6 @@ def check_phase2_config(cfg: Phase2Config, goal_size: int | None = None) -> None
             if len(getattr(cfg, name)) != goal_size:
                 raise ConfigError(f"{name}: the domain's goal space has {goal_size} dimension(s); "
                                   f"got {getattr(cfg, name)}")
-    _check_learning(cfg, ("actor_lr", "critic_lr"), ("action_noise",))
+    check_learning(cfg, ("actor_lr", "critic_lr"), ("action_noise",))
     if cfg.phase1_epoch < -1:
         raise ConfigError(f"phase1_epoch: an epoch >= 0, or -1 for the newest; got {cfg.phase1_epoch}")

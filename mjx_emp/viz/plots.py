@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mjx_emp.run import METRICS_FILE
+from mjx_emp.run.directory import METRICS_FILE
 
 
 def read_metrics(run_dir: Path) -> list[dict]:
@@ -130,10 +130,10 @@ def plot_run(run_dir: Path, chains: int = 8, skills_per_chain: int = 1) -> list[
     """
     import jax
 
-    from mjx_emp.checkpoint import CHECKPOINT_SUBDIR
-    from mjx_emp.config import Phase2Config
-    from mjx_emp.render import first_skills, record_skill_chain
-    from mjx_emp.run import PHASE2_SUBDIR, load_run, read_run_config
+    from mjx_emp.algos.he.config import Phase2Config
+    from mjx_emp.run.checkpoint import CHECKPOINT_SUBDIR
+    from mjx_emp.run.directory import PHASE2_SUBDIR, load_run, read_run_config
+    from mjx_emp.viz.render import first_skills, record_skill_chain
 
     run_dir = Path(run_dir)
     paths = [plot_goal_space_growth(read_metrics(run_dir), run_dir / "plots" / "goal_space_growth.png")]

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -61,38 +62,6 @@ def mean_and_stderr(values: Sequence[float]) -> dict[str, float]:
     return {"mean": float(x.mean()), "std": std, "stderr": std / math.sqrt(x.size), "count": int(x.size)}
 
 
-COVERAGE_SKILLS = 48
-"""Skills per coverage count, as in METRA's Ant figures."""
-
-
-def phase1_figures(trainer, state, key, episodes: int) -> dict:
-    """Per level: the goal-space box at the initial state and greedy goal-conditioned results;
-    for the agent: METRA's coverage and the top box's volume times its greedy success.
-
-    Goals come from each level's own (noise-free) goal space, episodes start from its
-    start-state buffer; at least ``episodes`` episodes per level (whole rounds of
-    ``num_envs``). Coverage counts the 1 m cells of goal space visited by
-    :data:`COVERAGE_SKILLS` greedy top-level skills from the initial state.
-    """
-    rounds = max(1, math.ceil(episodes / trainer.cfg.num_envs))
-    levels = []
-    for level, box in enumerate(trainer.goal_spaces(state)):
-        result = trainer.evaluate(state, level, jax.random.fold_in(key, level), rounds)
-        levels.append({"level": level, **box, **result, "episodes": rounds * trainer.cfg.num_envs})
-    paths = trainer.skill_paths(state, jax.random.fold_in(key, len(levels)), COVERAGE_SKILLS)
-    top = levels[-1]
-    return {"epoch": int(state.epoch), "env_steps": float(state.env_steps), "levels": levels,
-            "coverage_cells": coverage_cells(*paths), "volume_x_success": top["volume"] * top["success"]}
-
-
-def phase2_figures(trainer, epoch: int, state, key, episodes: int) -> dict:
-    """The paper's phase-2 figure of a phase-2 state: its task and the greedy policy's mean
-    minimum distance to goal and success on at least ``episodes`` goals from the region."""
-    cfg = trainer.cfg
-    return {"epoch": epoch, "n": cfg.n, "eps": cfg.eps, "region": list(cfg.region),
-            "region_offset": list(cfg.region_offset), **trainer.evaluate(state, key, episodes)}
-
-
 def aggregate_runs(reports: Sequence[dict]) -> list[dict]:
     """Mean and standard error over runs (seeds) of each level's volume, success and final distance."""
     if not reports:
@@ -120,3 +89,17 @@ def aggregate_phase2(reports: Sequence[dict]) -> dict:
     if not reports:
         raise ValueError("aggregate_phase2 needs at least one report")
     return {name: mean_and_stderr([r[name] for r in reports]) for name in ("min_distance", "success")}
+
+
+def epoch_header(state: Any, epoch_env_steps: float, seconds: float) -> dict[str, Any]:
+    """The fields every epoch's metrics line starts with: counters and throughput.
+
+    ``state`` is any train state with ``epoch`` and ``env_steps`` counters (phase 1 or 2).
+    """
+    return {
+        "epoch": int(state.epoch),
+        "env_steps": float(state.env_steps),
+        "epoch_env_steps": epoch_env_steps,
+        "seconds": seconds,
+        "env_steps_per_s": epoch_env_steps / seconds if seconds > 0 else None,
+    }

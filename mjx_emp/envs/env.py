@@ -24,10 +24,11 @@ import mujoco
 import numpy as np
 from flax import struct
 
-from mjx_emp._mjx import mjx
-from mjx_emp.config import ConfigError
+from mjx_emp.envs.mjx_quiet import mjx
+from mjx_emp.envs.registry import DOMAINS, DomainSpec
+from mjx_emp.errors import ConfigError
 
-MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
+MODELS_DIR = Path(__file__).resolve().parents[2] / "models"
 
 
 @struct.dataclass
@@ -62,43 +63,6 @@ class Cage:
     button_center: tuple[float, ...]
     button_half_size: tuple[float, ...]
     open_scale: float = 1000.0
-
-
-@dataclasses.dataclass(frozen=True)
-class DomainSpec:
-    """What distinguishes one domain from another: its MJCF file and its knobs."""
-
-    xml: str
-    action_repeat: int
-    goal_qpos: tuple[int, ...]
-    caged: bool = False
-    torso_quat: int | None = None
-    """Where the free torso's quaternion starts in qpos, for robots reset when upside down."""
-    standardize: bool = False
-    """Standardise network features by a random-action rollout's statistics (see
-    :func:`random_action_feature_stats`)."""
-
-
-# Control intervals follow the paper's Brax systems: 0.1875 s per Ant action (Brax's 10
-# substeps; here 10 physics steps of 0.01875 s) and 0.15 s per Half Cheetah action (Brax
-# used 48 substeps for its position-based solver; MuJoCo is stable with 10 of 0.015 s).
-# The point mass, which the paper does not use, acts every 0.1 s (up to 0.2 m per action).
-# An Ant that ends upside down cannot right itself: it is reset to its home pose (Gym's
-# convention for an unhealthy Ant) and the episode it was in ends (``flip_resets``). A
-# flipped Half Cheetah can still run along x, its goal space, so it is never reset (as in
-# Gym and Brax).
-ANT_TORSO_QUAT = 3
-DOMAINS: dict[str, DomainSpec] = {
-    "point_mass": DomainSpec("point_mass.xml", action_repeat=5, goal_qpos=(0, 1)),
-    "ant_field": DomainSpec("ant_field.xml", action_repeat=10, goal_qpos=(0, 1), torso_quat=ANT_TORSO_QUAT,
-                            standardize=True),
-    "ant_cage": DomainSpec("ant_cage.xml", action_repeat=10, goal_qpos=(0, 1), caged=True,
-                           torso_quat=ANT_TORSO_QUAT, standardize=True),
-    "half_cheetah_field": DomainSpec("half_cheetah_field.xml", action_repeat=10, goal_qpos=(0,), standardize=True),
-    "half_cheetah_cage": DomainSpec(
-        "half_cheetah_cage.xml", action_repeat=10, goal_qpos=(0,), caged=True, standardize=True
-    ),
-}
 
 
 @dataclasses.dataclass(frozen=True, eq=False)

@@ -1,6 +1,6 @@
 """Scripted point-mass policies: known-good controllers for tests, benchmarks and sanity checks.
 
-They follow the :data:`mjx_emp.hierarchy.LevelPolicy` signature, ignore params and keys,
+They follow the :data:`mjx_emp.rollout.hierarchy.LevelPolicy` signature, ignore params and keys,
 and assume the point-mass observation (x, y, vx, vy).
 """
 

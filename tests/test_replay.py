@@ -4,7 +4,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjx_emp.buffers import flatten_rows, replay_clear_where, replay_init, replay_insert, replay_sample
+from mjx_emp.replay import flatten_rows, replay_clear_where, replay_init, replay_insert, replay_sample
 
 insert = jax.jit(replay_insert)
 

@@ -27,26 +27,13 @@ import optax
 from flax import struct
 
 from mjx_emp import gce
-from mjx_emp.buffers import (
-    ReplayBuffer,
-    flatten_rows,
-    replay_clear_where,
-    replay_init,
-    replay_insert,
-    replay_sample,
-)
-from mjx_emp.config import TrainConfig, check_train_config
-from mjx_emp.envs import Env, make_env
-from mjx_emp.hierarchy import (
-    EpisodeEnd,
-    Hierarchy,
-    Params,
-    RolloutState,
-    Transition,
-    init_rollout,
-    rollout,
-)
-from mjx_emp.networks import (
+from mjx_emp.algos.he.config import TrainConfig, check_train_config
+from mjx_emp.envs.env import Env, make_env
+from mjx_emp.learners.common import actor_critic_step, all_finite
+from mjx_emp.learners.ddpg import GCLearner, GCRow, ddpg_losses, gc_learner_step, gc_row, relabel_goals
+from mjx_emp.learners.goal_space import GSLearner, GSRow, svg_losses
+from mjx_emp.metrics import epoch_header
+from mjx_emp.nets import (
     MLP,
     GoalSpaceActor,
     LevelParams,
@@ -56,55 +43,18 @@ from mjx_emp.networks import (
     level_policy,
     primitive_box,
 )
+from mjx_emp.replay import ReplayBuffer, flatten_rows, replay_clear_where, replay_init, replay_insert, replay_sample
+from mjx_emp.rollout.collect import CollectTotals, collect
+from mjx_emp.rollout.hierarchy import EpisodeEnd, Hierarchy, Params, RolloutState, init_rollout, rollout
+from mjx_emp.tracing import count_trace
 
+TRAIN_EPOCH_TRACE = "he.train_epoch"
+"""Name under which :mod:`mjx_emp.tracing` counts traces (compiles) of the phase-1 epoch."""
 # What a schedule item does.
 MODE_STARTS, MODE_GC, MODE_GS, MODE_EVAL = 0, 1, 2, 3
 MODE_NAMES = {MODE_STARTS: "starts", MODE_GC: "gc", MODE_GS: "gs", MODE_EVAL: "eval"}
 # Offset of the start-state chain's goal: never reached, the chain ends on its action count.
 _UNREACHABLE = 1e6
-
-
-@struct.dataclass
-class GCLearner:
-    """A level's goal-conditioned actor-critic with target networks and Adam states."""
-
-    actor: Params
-    critic: Params
-    target_actor: Params
-    target_critic: Params
-    actor_opt: optax.OptState
-    critic_opt: optax.OptState
-
-
-@struct.dataclass
-class GSLearner:
-    """A level's goal-space actor mu(s0) and critic R(s0, noise, a) with Adam states."""
-
-    actor: Params
-    critic: Params
-    actor_opt: optax.OptState
-    critic_opt: optax.OptState
-
-
-@struct.dataclass
-class GCRow:
-    """One stored goal-conditioned transition; reward and discount are derived on sampling."""
-
-    obs: jax.Array
-    goal: jax.Array
-    action: jax.Array
-    next_obs: jax.Array
-    reached: jax.Array
-
-
-@struct.dataclass
-class GSRow:
-    """One stored goal-space sample (s0, noise, a, r)."""
-
-    obs: jax.Array
-    noise: jax.Array
-    action: jax.Array
-    reward: jax.Array
 
 
 @struct.dataclass
@@ -167,17 +117,17 @@ def epoch_schedule(cfg: TrainConfig) -> np.ndarray:
     return np.asarray(items, np.int32)
 
 
-@dataclasses.dataclass(frozen=True, eq=False)
+@dataclasses.dataclass(frozen=True)
 class Trainer:
     """Static side of phase 1 for one config: env, networks, optimisers, the rollout agent.
 
-    Build it once per config (it is a static jit argument, hashed by identity) and drive
-    it with :meth:`init` and :meth:`train_epoch`.
+    It is a static jit argument that hashes and compares by its config, so trainers of
+    equal configs share compiled programs. Drive it with :meth:`init` and :meth:`train_epoch`.
     """
 
     cfg: TrainConfig
-    env: Env = dataclasses.field(init=False)
-    hierarchy: Hierarchy = dataclasses.field(init=False)
+    env: Env = dataclasses.field(init=False, compare=False, repr=False)
+    hierarchy: Hierarchy = dataclasses.field(init=False, compare=False, repr=False)
 
     def __post_init__(self):
         check_train_config(self.cfg)
@@ -346,8 +296,9 @@ class Trainer:
         fills is emptied first (the paper's fresh D per call). EVAL: nothing is stored
         (success and distance are read from each environment's first episode in every
         mode; an episode a reset cut short, a flipped Ant, counts as a failure scored at
-        its last state before the reset). STARTS: continues the greedy chain; the state each level got a new goal in
-        is a start state.
+        its last state before the reset). STARTS: continues the greedy chain; the state each
+        level got a new goal in is a start state. Returns the new state and the call's
+        :class:`CollectTotals`.
         """
         cfg, env, h = self.cfg, self.env, self.hierarchy
         params, start_params = self.rollout_inputs(state, root, mode)
@@ -357,17 +308,8 @@ class Trainer:
             lambda: state.chain,
             lambda: init_rollout(h, params, self.start, start_params, key, cfg.num_envs, root),
         )
-        limit = self._max_chunks()[root]
-        zero = jnp.zeros((), jnp.float32)
-
-        def unfinished(carry):
-            rs, _, chunks, _ = carry
-            return (chunks < limit) & (is_chain | jnp.any(rs.episodes_done == 0))
-
-        def chunk(carry):
-            rs, buffers, chunks, totals = carry
-            replay, gs_replay, starts = buffers
-            rs, transitions, episodes, stats = rollout(h, params, self.start, start_params, rs, cfg.chunk_steps)
+        def absorb(kept, transitions, episodes, stats):
+            (replay, gs_replay, starts), totals = kept
             transitions = flatten_rows(transitions)
             episodes = flatten_rows(episodes)
             replay = tuple(
@@ -390,30 +332,23 @@ class Trainer:
                 axis=-1,
             )
             root_valid = jnp.stack([t.valid for t in transitions])[root]
-            totals = (
-                totals[0] + stats.primitive_steps.astype(jnp.float32),
-                totals[1] + root_valid.sum(),
-                totals[2] + first_episode.sum(),
-                totals[3] + (first_episode & episodes.reached).sum(),
-                totals[4] + jnp.where(first_episode, distance, 0.0).sum(),
-                totals[5] + stats.flip_resets,
-            )
-            return rs, (replay, gs_replay, starts), chunks + 1, totals
+            totals = totals.add(stats, root_valid, first_episode, episodes.reached, distance)
+            return (replay, gs_replay, starts), totals
 
         replay, gs_replay = state.replay, state.gs_replay
         if cfg.fresh_replay:
             replay = tuple(replay_clear_where(b, (root == i) & (mode == MODE_GC)) for i, b in enumerate(replay))
             gs_replay = tuple(replay_clear_where(b, (root == i) & (mode == MODE_GS)) for i, b in enumerate(gs_replay))
-        carry = (first, (replay, gs_replay, state.starts), jnp.zeros((), jnp.int32),
-                 (zero, jnp.int32(0), jnp.int32(0), jnp.int32(0), zero, jnp.int32(0)))
-        rs, (replay, gs_replay, starts), _, totals = jax.lax.while_loop(unfinished, chunk, carry)
+        rs, ((replay, gs_replay, starts), totals) = collect(
+            h, params, self.start, start_params, first, cfg.chunk_steps, self._max_chunks()[root], absorb,
+            ((replay, gs_replay, state.starts), CollectTotals.zero()), fixed_length=is_chain,
+        )
         chain = jax.lax.cond(is_chain, lambda: rs, lambda: state.chain)
         state = state.replace(
             replay=replay, gs_replay=gs_replay, starts=starts, chain=chain,
-            env_steps=state.env_steps + totals[0],
+            env_steps=state.env_steps + totals.env_steps,
         )
-        episodes = jnp.maximum(totals[2], 1)
-        return state, (totals[0], totals[1], totals[2], totals[3] / episodes, totals[4] / episodes, totals[5])
+        return state, totals
 
     def _gs_row(self, level: int, episodes: EpisodeEnd) -> GSRow:
         """Goal-space samples from finished episodes, rewarded with the level's sigma_gs."""
@@ -435,7 +370,7 @@ class Trainer:
             self.q_value, learner, batch, self.env, cfg.sigma_gc[level], cfg.gamma,
         )
 
-    def _gc_update(self, level: int):
+    def gc_update(self, level: int):
         cfg, opt = self.cfg, self.optimizers
 
         def update(learners, replay, gs_replay, key):
@@ -458,23 +393,10 @@ class Trainer:
         return update
 
     def gs_losses(self, level: int, batch: GSRow, noise: jax.Array):
-        """(critic loss, actor loss) functions of one goal-space minibatch (SVG through R).
+        """(critic loss, actor loss) functions of one goal-space minibatch at ``level`` (SVG)."""
+        return svg_losses(self.gs_value, functools.partial(self.goal_space_action, level), batch, noise)
 
-        The actor averages R over fresh uniform ``noise``: the stored noise over-represents
-        goals that end their episodes early (they are collected more often per step).
-        """
-
-        def critic_loss(critic):
-            value = self.gs_value(critic, batch.obs, batch.noise, batch.action)
-            return jnp.mean(jnp.square(value - batch.reward))
-
-        def actor_loss(actor, critic):
-            action = jax.vmap(lambda o: self.goal_space_action(level, actor, o))(batch.obs)
-            return -jnp.mean(self.gs_value(critic, batch.obs, noise, action))
-
-        return critic_loss, actor_loss
-
-    def _gs_update(self, level: int):
+    def gs_update(self, level: int):
         cfg, opt = self.cfg, self.optimizers
 
         def update(learners, replay, gs_replay, key):
@@ -486,7 +408,7 @@ class Trainer:
                 batch = replay_sample(gs_replay[level], sample_key, cfg.batch_size)
                 noise = gce.goal_noise(noise_key, batch.noise.shape)
                 losses_fns = self.gs_losses(level, batch, noise)
-                actor, critic, actor_opt, critic_opt, losses = _actor_critic_step(
+                actor, critic, actor_opt, critic_opt, losses = actor_critic_step(
                     *losses_fns, learner.actor, learner.critic, learner.actor_opt, learner.critic_opt,
                     opt["gs_actor"], opt["gs_critic"],
                 )
@@ -504,25 +426,24 @@ class Trainer:
 
     # ---- the epoch ------------------------------------------------------------------
     def _train_epoch(self, state: TrainState) -> tuple[TrainState, ItemStats]:
+        count_trace(TRAIN_EPOCH_TRACE)
         cfg = self.cfg
         branches = [self._no_update]
         for level in range(cfg.k):
-            branches += [self._gc_update(level), self._gs_update(level)]
+            branches += [self.gc_update(level), self.gs_update(level)]
 
         def item(state: TrainState, schedule_item):
             root, mode = schedule_item[0], schedule_item[1]
             key, collect_key, update_key = jax.random.split(state.key, 3)
-            state, (steps, transitions, episodes, reached, distance, flips) = self._collect(
-                state.replace(key=key), root, mode, collect_key
-            )
+            state, totals = self._collect(state.replace(key=key), root, mode, collect_key)
             branch = jnp.select([mode == MODE_GC, mode == MODE_GS], [1 + 2 * root, 2 + 2 * root], 0)
             (gcs, gss), losses = jax.lax.switch(
                 branch, branches, (state.gc, state.gs), state.replay, state.gs_replay, update_key
             )
             stats = ItemStats(
-                root=root, mode=mode, env_steps=steps, transitions=transitions, episodes=episodes,
-                reached=reached, final_distance=distance, critic_loss=losses[0], actor_loss=losses[1],
-                flip_resets=flips,
+                root=root, mode=mode, env_steps=totals.env_steps, transitions=totals.transitions,
+                episodes=totals.episodes, reached=totals.success(), final_distance=totals.mean_distance(),
+                critic_loss=losses[0], actor_loss=losses[1], flip_resets=totals.flip_resets,
             )
             return state.replace(gc=gcs, gs=gss), stats
 
@@ -544,8 +465,8 @@ class Trainer:
 
     def _evaluate(self, state: TrainState, level: jax.Array, key: jax.Array, rounds: int):
         def one(_, round_key):
-            _, (_, _, _, reached, distance, _) = self._collect(state, level, jnp.int32(MODE_EVAL), round_key)
-            return None, (reached, distance)
+            _, totals = self._collect(state, level, jnp.int32(MODE_EVAL), round_key)
+            return None, (totals.success(), totals.mean_distance())
 
         _, (reached, distance) = jax.lax.scan(one, None, jax.random.split(key, rounds))
         return reached.mean(), distance.mean()
@@ -670,120 +591,9 @@ class Trainer:
         return f"{metrics['env_steps']:.3g} env steps  {metrics['env_steps_per_s']:.3g} steps/s  {levels}"
 
 
-def _actor_critic_step(critic_loss, actor_loss, actor, critic, actor_opt, critic_opt, actor_tx, critic_tx):
-    """One critic step, then one actor step through the updated critic; returns both losses.
-
-    ``critic_loss(critic)`` and ``actor_loss(actor, critic)`` are the minibatch losses; the
-    goal-conditioned (DPG) and goal-space (SVG) learners share this step.
-    """
-    c_loss, c_grad = jax.value_and_grad(critic_loss)(critic)
-    c_updates, critic_opt = critic_tx.update(c_grad, critic_opt, critic)
-    critic = optax.apply_updates(critic, c_updates)
-    a_loss, a_grad = jax.value_and_grad(actor_loss)(actor, critic)
-    a_updates, actor_opt = actor_tx.update(a_grad, actor_opt, actor)
-    actor = optax.apply_updates(actor, a_updates)
-    return actor, critic, actor_opt, critic_opt, jnp.stack([c_loss, a_loss])
-
-
-def reward_cap(goal_size: int, sigma: float, gamma: float) -> float:
-    """Largest value any return can have: every step at the reward's peak, never ending.
-
-    The reward log N(goal; h(s'), sigma) peaks at h(s') = goal. Bootstrapped targets are
-    capped here, which stops the critic's overestimation from feeding on itself.
-    """
-    peak = -goal_size * (math.log(sigma) + 0.5 * gce.LOG_2PI)
-    return max(peak, peak / (1.0 - gamma))
-
-
-def ddpg_losses(policy, q_value, learner: GCLearner, batch: GCRow, env: Env, sigma: float, gamma: float):
-    """(critic loss, actor loss) functions of one goal-conditioned DDPG minibatch.
-
-    ``policy(actor, obs, goal)`` is the deterministic policy over a batch and
-    ``q_value(critic, obs, goal, action)`` the critic: [B] values, or [critics, B] for a
-    clipped double-Q ensemble, whose targets bootstrap from the smallest. The reward is
-    the paper's log N(goal; h(s'), sigma); the discount drops to 0 once the goal is
-    reached, and bootstrapped values are capped at :func:`reward_cap`. Every
-    goal-conditioned level of phase 1, and phase 2's added level, learn with these losses.
-    """
-    reward = gce.goal_conditioned_reward(batch.goal, env.goal_of_obs(batch.next_obs), sigma)
-    discount = gce.goal_conditioned_discount(batch.reached, gamma)
-    next_action = policy(learner.target_actor, batch.next_obs, batch.goal)
-    next_q = q_value(learner.target_critic, batch.next_obs, batch.goal, next_action)
-    if next_q.ndim > reward.ndim:
-        next_q = next_q.min(axis=0)
-    cap = reward_cap(env.goal_size, sigma, gamma)
-    target = jax.lax.stop_gradient(reward + discount * jnp.minimum(next_q, cap))
-
-    def critic_loss(critic):
-        q = q_value(critic, batch.obs, batch.goal, batch.action)
-        return jnp.mean(jnp.square(q - target))
-
-    def actor_loss(actor, critic):
-        action = policy(actor, batch.obs, batch.goal)
-        return -jnp.mean(q_value(critic, batch.obs, batch.goal, action))
-
-    return critic_loss, actor_loss
-
-
-def gc_learner_step(learner: GCLearner, losses, actor_tx, critic_tx, tau: float) -> tuple[GCLearner, jax.Array]:
-    """One DDPG step of a goal-conditioned learner (critic, actor, Polyak targets); returns its losses."""
-    actor, critic, actor_opt, critic_opt, values = _actor_critic_step(
-        *losses, learner.actor, learner.critic, learner.actor_opt, learner.critic_opt, actor_tx, critic_tx,
-    )
-    learner = GCLearner(
-        actor=actor, critic=critic,
-        target_actor=optax.incremental_update(actor, learner.target_actor, tau),
-        target_critic=optax.incremental_update(critic, learner.target_critic, tau),
-        actor_opt=actor_opt, critic_opt=critic_opt,
-    )
-    return learner, values
-
-
-def relabel_goals(batch: GCRow, key: jax.Array, fraction: float, env: Env, eps: float) -> GCRow:
-    """``batch`` with a ``fraction`` of its rows given another row's goal offset.
-
-    Row i keeps its (s, a, s') and gets the goal h(s_i) + (goal_j - h(s_j)) for a random j,
-    so the critic sees every transition's outcome scored against many goal directions
-    and distances of the kind the level is asked for; ``reached`` is recomputed against
-    the new goal (within ``eps`` of h(s')).
-    """
-    pick_key, which_key = jax.random.split(key)
-    rows = batch.goal.shape[0]
-    offsets = batch.goal - env.goal_of_obs(batch.obs)
-    donor = jax.random.randint(pick_key, (rows,), 0, rows)
-    swap = jax.random.uniform(which_key, (rows,)) < fraction
-    goal = jnp.where(swap[:, None], env.goal_of_obs(batch.obs) + offsets[donor], batch.goal)
-    reached = jnp.linalg.norm(env.goal_of_obs(batch.next_obs) - goal, axis=-1) < eps
-    return batch.replace(goal=goal, reached=jnp.where(swap, reached, batch.reached))
-
-
-def gc_row(t: Transition) -> GCRow:
-    """The stored form of a level's transitions (reward and discount are derived on sampling)."""
-    return GCRow(obs=t.obs, goal=t.goal, action=t.action, next_obs=t.next_obs, reached=t.reached)
-
-
 _jit_init = jax.jit(Trainer._init, static_argnums=0)
 _jit_train_epoch = jax.jit(Trainer._train_epoch, static_argnums=0, donate_argnums=1)
 _jit_evaluate = jax.jit(Trainer._evaluate, static_argnums=(0, 4))
 _jit_skill_paths = jax.jit(Trainer._skill_paths, static_argnums=(0, 3))
 
 
-def epoch_header(state: Any, epoch_env_steps: float, seconds: float) -> dict[str, Any]:
-    """The fields every epoch's metrics line starts with: counters and throughput.
-
-    ``state`` is any train state with ``epoch`` and ``env_steps`` counters (phase 1 or 2).
-    """
-    return {
-        "epoch": int(state.epoch),
-        "env_steps": float(state.env_steps),
-        "epoch_env_steps": epoch_env_steps,
-        "seconds": seconds,
-        "env_steps_per_s": epoch_env_steps / seconds if seconds > 0 else None,
-    }
-
-
-@jax.jit
-def all_finite(tree: Any) -> jax.Array:
-    """Whether every floating-point array of ``tree`` (parameters, optimizer states) is finite."""
-    leaves = [x for x in jax.tree.leaves(tree) if jnp.issubdtype(x.dtype, jnp.floating)]
-    return jnp.stack([jnp.all(jnp.isfinite(x)) for x in leaves]).all()

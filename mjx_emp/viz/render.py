@@ -16,16 +16,14 @@ from pathlib import Path
 
 import numpy as np
 
+from mjx_emp.errors import RenderError
+
 LEVEL_COLOURS = ((1.0, 0.8, 0.0, 0.9), (0.1, 0.75, 0.2, 0.9), (0.15, 0.35, 0.95, 0.9), (0.85, 0.1, 0.85, 0.9))
 HEADLESS_HELP = (
     "offscreen OpenGL is unavailable. mjx-emp renders with MUJOCO_GL=egl (EGL_PLATFORM="
     "surfaceless), which needs Mesa's EGL and DRI drivers (Debian/Ubuntu: apt install libegl1 "
     "libgl1-mesa-dri); or install libosmesa6 and set MUJOCO_GL=osmesa"
 )
-
-
-class RenderError(RuntimeError):
-    """No offscreen OpenGL context could be made; the message says which system package helps."""
 
 
 def configure_headless_gl() -> None:
@@ -51,7 +49,7 @@ def record_rollout(h, params, start, start_params, key, steps: int, root: int) -
     """
     import jax
 
-    from mjx_emp.hierarchy import jit_init_rollout, jit_rollout
+    from mjx_emp.rollout.hierarchy import jit_init_rollout, jit_rollout
 
     rollout_state = jit_init_rollout(h, params, start, start_params, key, 1, root)
     qpos, mocap, goals = [], [], []
@@ -68,7 +66,7 @@ def record_skill_chain(trainer, state, key, steps: int) -> Recording:
     """The greedy chain of top-level skills from the initial state (subgoals of levels 0..k-1)."""
     import jax.numpy as jnp
 
-    from mjx_emp.train import MODE_STARTS
+    from mjx_emp.algos.he.agent import MODE_STARTS
 
     k = trainer.cfg.k
     params, start_params = trainer.rollout_inputs(state, jnp.int32(k), jnp.int32(MODE_STARTS))

@@ -10,11 +10,13 @@ import numpy as np
 import pytest
 from tiny import TINY, TINY_PHASE2, tiny_after_two_epochs
 
-from mjx_emp.config import ConfigError, Phase2Config, check_phase2_config
-from mjx_emp.envs import DOMAINS
-from mjx_emp.experiments.presets import PHASE2_PRESETS, PRESETS, phase2_preset_for
-from mjx_emp.networks import LevelParams
-from mjx_emp.phase2 import Phase2Trainer, _jit_train_epoch
+from mjx_emp.algos.he.config import Phase2Config, check_phase2_config
+from mjx_emp.algos.he.presets import PHASE2_PRESETS, PRESETS, phase2_preset_for
+from mjx_emp.downstream import TRAIN_EPOCH_TRACE, Phase2Trainer
+from mjx_emp.envs.registry import DOMAINS
+from mjx_emp.errors import ConfigError
+from mjx_emp.nets import LevelParams
+from mjx_emp.tracing import traces
 
 
 @pytest.fixture(scope="module")
@@ -71,9 +73,9 @@ def test_two_epochs_train_the_added_level_only_and_do_not_recompile(tiny_phase2)
     trainer, skills_state, state = tiny_phase2
     before = jax.tree.map(np.asarray, state.learner.actor)
     state, first = trainer.train_epoch(jax.tree.map(jnp.copy, state))
-    compiled = _jit_train_epoch._cache_size()
+    compiled = traces(TRAIN_EPOCH_TRACE)
     state, second = trainer.train_epoch(state)
-    assert _jit_train_epoch._cache_size() == compiled, "epoch 2 recompiled"
+    assert traces(TRAIN_EPOCH_TRACE) == compiled, "epoch 2 recompiled"
     assert int(state.epoch) == 2 and float(state.env_steps) > 0
     # The phase-1 skills and goal spaces are frozen.
     for frozen, source in ((state.skills, tuple(g.actor for g in skills_state.gc)),

@@ -1,0 +1,1 @@
+"""Skill-learning algorithms, each a config, an agent and presets; see algos.registry."""

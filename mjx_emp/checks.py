@@ -1,0 +1,56 @@
+"""Configuration checks any algorithm's config shares, and configs back from JSON.
+
+Plain Python (no JAX import), so the CLI can reject bad input before compiling anything.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+
+from mjx_emp.errors import ConfigError
+
+
+def check_levels(n: Sequence[int], eps: Sequence[float], k: int | None = None) -> None:
+    """Validate per-level n and eps for a k-level agent (k defaults to len(n))."""
+    k = len(n) if k is None else k
+    if k < 1:
+        raise ConfigError("n: give at least one level (k >= 1), e.g. --n 20 10")
+    if len(n) != k or len(eps) != k:
+        raise ConfigError(
+            f"n and eps: need one entry per level (k={k}); got n={tuple(n)}, eps={tuple(eps)}"
+        )
+    if any(int(v) != v or v < 1 for v in n):
+        raise ConfigError(f"n: every entry must be an integer >= 1; got {tuple(n)}")
+    if any(not v > 0 for v in eps):
+        raise ConfigError(f"eps: every entry must be > 0; got {tuple(eps)}")
+
+
+def check_counts(cfg, names: tuple[str, ...]) -> None:
+    """Every named field (a count or size) is >= 1."""
+    for name in names:
+        if getattr(cfg, name) < 1:
+            raise ConfigError(f"{name}: must be >= 1; got {getattr(cfg, name)}")
+
+
+def check_learning(cfg, learning_rates: tuple[str, ...], noises: tuple[str, ...]) -> None:
+    """The actor-critic settings both phases share: hidden widths, rates, tau, gamma, noise stds."""
+    if not cfg.hidden or any(w < 1 for w in cfg.hidden):
+        raise ConfigError(f"hidden: give one or more widths >= 1; got {cfg.hidden}")
+    for name in (*learning_rates, "tau"):
+        if not 0 < getattr(cfg, name) <= 1:
+            raise ConfigError(f"{name}: must be in (0, 1]; got {getattr(cfg, name)}")
+    if not 0 <= cfg.gamma < 1:
+        raise ConfigError(f"gamma: must be in [0, 1); got {cfg.gamma}")
+    for name in noises:
+        if getattr(cfg, name) < 0:
+            raise ConfigError(f"{name}: must be >= 0; got {getattr(cfg, name)}")
+
+
+def config_from_dict(values: dict, config_type: type):
+    """Rebuild a config dataclass from its JSON form (lists back to tuples); unknown fields are an error."""
+    fields = {f.name: f for f in dataclasses.fields(config_type)}
+    unknown = sorted(set(values) - set(fields))
+    if unknown:
+        raise ConfigError(f"{unknown[0]}: not a {config_type.__name__} field; allowed: {sorted(fields)}")
+    return config_type(**{name: tuple(v) if isinstance(v, list) else v for name, v in values.items()})

@@ -1,0 +1,144 @@
+"""The commands a user can give, as typed dataclasses: the CLI's vocabulary.
+
+Plain data (tyro annotations, no JAX import): the CLI parses them, and the run layer and
+experiment scripts take them as requests. Domain names come from the registry, so the
+rollout command offers exactly the domains that exist.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Annotated, Literal
+
+import tyro
+
+from mjx_emp.algos.he.config import Phase2Config, TrainConfig
+from mjx_emp.envs.registry import DOMAIN_NAMES
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainExperiment:
+    """Phase-1 Hierarchical Empowerment training.
+
+    RUN_DIR receives config.json, metrics.jsonl (one line per epoch) and checkpoints/ (an
+    orbax checkpoint after every epoch; continue with `mjx-emp train --resume RUN_DIR`).
+    """
+
+    config: Annotated[TrainConfig, tyro.conf.OmitArgPrefixes]
+    run_dir: str = ""
+    """Run directory; empty picks runs/<env>-k<k>-<date>-<time>. Must not hold a run already."""
+    keep_checkpoints: int = 3
+    """How many of the newest epoch checkpoints to keep."""
+
+
+@dataclasses.dataclass(frozen=True)
+class ResumeExperiment:
+    """Continue a run from its latest good checkpoint, bit for bit as if never stopped."""
+
+    resume: str
+    """Run directory written by `mjx-emp train` (for `mjx-emp phase2 --resume`: the phase-2 directory)."""
+    epochs: int | None = None
+    """New total number of epochs (default: the run's own). The only setting a resume may change."""
+    fallback: bool = False
+    """If the newest checkpoint is unusable, resume from the newest one that restores."""
+    keep_checkpoints: int = 3
+    """How many of the newest epoch checkpoints to keep."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Phase2Experiment:
+    """Phase 2 of Hierarchical Empowerment: learn to reach goals drawn uniformly from a fixed
+    region, with the phase-1 run's top-level skills as actions.
+
+    Writes to OUT (default RUN_DIR/phase2): config.json, skills.json (the phase-1 config),
+    metrics.jsonl and checkpoints/ (one per epoch; continue with
+    `mjx-emp phase2 --resume OUT`).
+    """
+
+    run_dir: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="RUN_DIR")]
+    """Phase-1 run directory written by `mjx-emp train`."""
+    config: Annotated[Phase2Config, tyro.conf.OmitArgPrefixes]
+    out: str = ""
+    """Phase-2 directory; empty means RUN_DIR/phase2. Must not hold a phase-2 run already."""
+    keep_checkpoints: int = 3
+    """How many of the newest epoch checkpoints to keep."""
+
+
+@dataclasses.dataclass(frozen=True)
+class EvalExperiment:
+    """Phase-1 figures of each run's newest checkpoint (goal-space extent per level and greedy
+    goal-conditioned success on goals from its own goal space) and, where RUN_DIR/phase2
+    exists, the paper's phase-2 figure: the mean over episodes of the minimum distance to
+    goal. Several runs (seeds) are aggregated to mean and standard error."""
+
+    run_dirs: tyro.conf.Positional[tuple[str, ...]]
+    """Run directories written by `mjx-emp train` (one per seed)."""
+    episodes: int = 400
+    """Evaluation episodes per level and run, and phase-2 episodes per run (each rounded up
+    to whole batches of num_envs)."""
+    seed: int = 0
+    """Seed of the evaluation goals and start states."""
+    out: str = ""
+    """JSON output; empty means eval.json in the first run directory."""
+
+
+@dataclasses.dataclass(frozen=True)
+class PlotExperiment:
+    """Draw RUN_DIR/plots/: goal_space_growth.png from metrics.jsonl and, from the checkpoints,
+    goal_spaces_epoch0.png and goal_spaces.png (boxes per level with greedy skill chains)."""
+
+    run_dir: tyro.conf.Positional[str]
+    """Run directory written by `mjx-emp train`."""
+
+
+@dataclasses.dataclass(frozen=True)
+class RenderExperiment:
+    """Render the greedy chain of top-level skills from RUN_DIR's newest checkpoint as a GIF
+    (or, with --phase2, the phase-2 policy reaching goals from its region)."""
+
+    run_dir: tyro.conf.Positional[str]
+    """Run directory written by `mjx-emp train`."""
+    steps: int = 200
+    """Primitive steps (frames) to record."""
+    width: int = 320
+    """Frame width in pixels."""
+    height: int = 240
+    """Frame height in pixels."""
+    fps: float = 10.0
+    """Frames per second of the GIF (one frame is one control step)."""
+    distance: float = 6.0
+    """Camera distance from the torso."""
+    seed: int = 0
+    """Seed of the skills drawn from the top goal space (or of the phase-2 goals)."""
+    phase2: bool = False
+    """Film the phase-2 policy of RUN_DIR/phase2 instead of the skill chain."""
+    out: str = ""
+    """Output GIF; empty means RUN_DIR/skills.gif (RUN_DIR/phase2.gif with --phase2)."""
+
+
+EnvName = Literal[DOMAIN_NAMES]
+
+
+@dataclasses.dataclass(frozen=True)
+class RolloutExperiment:
+    """Hierarchical rollout of a k-level agent with random-init MLP policies."""
+
+    env: EnvName = "point_mass"
+    """Domain to simulate."""
+    n: tuple[int, ...] = (20, 10)
+    """Max actions per level, bottom first; its length is k."""
+    eps: tuple[float, ...] = (0.6, 1.2)
+    """Goal threshold per level (distance in goal space), bottom first."""
+    subgoal_half_width: tuple[float, ...] = (2.0,)
+    """Half-width of the subgoal box each level above 0 outputs (one per upper level)."""
+    root_goal_half_width: float = 4.0
+    """Root goals are drawn uniformly within this distance of the start position."""
+    batch_size: int = 256
+    """Environments simulated in parallel."""
+    steps: int = 400
+    """Primitive actions per environment per call."""
+    calls: int = 3
+    """Timed calls after the compiling one."""
+    hidden: tuple[int, ...] = (256, 256)
+    """Hidden layer widths of every policy MLP."""
+    seed: int = 0

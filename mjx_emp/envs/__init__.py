@@ -1,0 +1,1 @@
+"""Environments: the domain registry (plain Python), MJX environments, scripted controllers."""

@@ -1,0 +1,47 @@
+"""The domains that exist, by name, and what distinguishes them (no JAX import).
+
+The CLI and configs validate domain names against this registry before anything
+compiles; :func:`mjx_emp.envs.env.make_env` builds an environment from an entry.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+
+@dataclasses.dataclass(frozen=True)
+class DomainSpec:
+    """What distinguishes one domain from another: its MJCF file and its knobs."""
+
+    xml: str
+    action_repeat: int
+    goal_qpos: tuple[int, ...]
+    caged: bool = False
+    torso_quat: int | None = None
+    """Where the free torso's quaternion starts in qpos, for robots reset when upside down."""
+    standardize: bool = False
+    """Standardise network features by a random-action rollout's statistics (see
+    :func:`random_action_feature_stats`)."""
+
+
+# Control intervals follow the paper's Brax systems: 0.1875 s per Ant action (Brax's 10
+# substeps; here 10 physics steps of 0.01875 s) and 0.15 s per Half Cheetah action (Brax
+# used 48 substeps for its position-based solver; MuJoCo is stable with 10 of 0.015 s).
+# The point mass, which the paper does not use, acts every 0.1 s (up to 0.2 m per action).
+# An Ant that ends upside down cannot right itself: it is reset to its home pose (Gym's
+# convention for an unhealthy Ant) and the episode it was in ends (``flip_resets``). A
+# flipped Half Cheetah can still run along x, its goal space, so it is never reset (as in
+# Gym and Brax).
+ANT_TORSO_QUAT = 3
+DOMAINS: dict[str, DomainSpec] = {
+    "point_mass": DomainSpec("point_mass.xml", action_repeat=5, goal_qpos=(0, 1)),
+    "ant_field": DomainSpec("ant_field.xml", action_repeat=10, goal_qpos=(0, 1), torso_quat=ANT_TORSO_QUAT,
+                            standardize=True),
+    "ant_cage": DomainSpec("ant_cage.xml", action_repeat=10, goal_qpos=(0, 1), caged=True,
+                           torso_quat=ANT_TORSO_QUAT, standardize=True),
+    "half_cheetah_field": DomainSpec("half_cheetah_field.xml", action_repeat=10, goal_qpos=(0,), standardize=True),
+    "half_cheetah_cage": DomainSpec(
+        "half_cheetah_cage.xml", action_repeat=10, goal_qpos=(0,), caged=True, standardize=True
+    ),
+}
+DOMAIN_NAMES: tuple[str, ...] = tuple(DOMAINS)

@@ -1,0 +1,21 @@
+"""Every error type the library raises on purpose, each with a message a user can act on.
+
+The CLI maps them to exit codes (run.directory.main_guarded): bad input and unusable
+checkpoints exit 2, a diverged run 1, no offscreen GL 3.
+"""
+
+
+class ConfigError(ValueError):
+    """A configuration value is invalid; the message names the field and what it allows."""
+
+
+class CheckpointError(RuntimeError):
+    """A checkpoint cannot be used; the message names the file and what is wrong with it."""
+
+
+class TrainingDiverged(RuntimeError):
+    """An epoch produced a non-finite loss or parameter; the run stopped before keeping it."""
+
+
+class RenderError(RuntimeError):
+    """No offscreen OpenGL context could be made; the message says which system package helps."""

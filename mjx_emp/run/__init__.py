@@ -1,0 +1,1 @@
+"""Runs: the run directory, the epoch loop, checkpoints, and evaluation of saved runs."""

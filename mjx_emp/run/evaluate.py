@@ -1,0 +1,41 @@
+"""The figures a saved agent is judged by: phase-1 goal spaces, success and coverage; phase 2's
+minimum distance to goal. `mjx-emp eval` and the experiment scripts report these."""
+
+from __future__ import annotations
+
+import math
+
+import jax
+
+from mjx_emp.metrics import coverage_cells
+
+COVERAGE_SKILLS = 48
+"""Skills per coverage count, as in METRA's Ant figures."""
+
+
+def phase1_figures(trainer, state, key, episodes: int) -> dict:
+    """Per level: the goal-space box at the initial state and greedy goal-conditioned results;
+    for the agent: METRA's coverage and the top box's volume times its greedy success.
+
+    Goals come from each level's own (noise-free) goal space, episodes start from its
+    start-state buffer; at least ``episodes`` episodes per level (whole rounds of
+    ``num_envs``). Coverage counts the 1 m cells of goal space visited by
+    :data:`COVERAGE_SKILLS` greedy top-level skills from the initial state.
+    """
+    rounds = max(1, math.ceil(episodes / trainer.cfg.num_envs))
+    levels = []
+    for level, box in enumerate(trainer.goal_spaces(state)):
+        result = trainer.evaluate(state, level, jax.random.fold_in(key, level), rounds)
+        levels.append({"level": level, **box, **result, "episodes": rounds * trainer.cfg.num_envs})
+    paths = trainer.skill_paths(state, jax.random.fold_in(key, len(levels)), COVERAGE_SKILLS)
+    top = levels[-1]
+    return {"epoch": int(state.epoch), "env_steps": float(state.env_steps), "levels": levels,
+            "coverage_cells": coverage_cells(*paths), "volume_x_success": top["volume"] * top["success"]}
+
+
+def phase2_figures(trainer, epoch: int, state, key, episodes: int) -> dict:
+    """The paper's phase-2 figure of a phase-2 state: its task and the greedy policy's mean
+    minimum distance to goal and success on at least ``episodes`` goals from the region."""
+    cfg = trainer.cfg
+    return {"epoch": epoch, "n": cfg.n, "eps": cfg.eps, "region": list(cfg.region),
+            "region_offset": list(cfg.region_offset), **trainer.evaluate(state, key, episodes)}

@@ -1,0 +1,1 @@
+"""Plots and renders of runs, drawn from what agents record."""

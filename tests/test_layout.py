@@ -1,0 +1,74 @@
+"""The package's layering: imports only go down, and no module uses another's private names."""
+
+import ast
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGE = ROOT / "mjx_emp"
+
+# Bottom first. A module may import modules of its own layer or of layers below it.
+LAYERS = [
+    ["mjx_emp.errors", "mjx_emp.tracing"],
+    ["mjx_emp.checks", "mjx_emp.envs.registry"],
+    ["mjx_emp.envs.mjx_quiet", "mjx_emp.envs.env", "mjx_emp.envs.scripted", "mjx_emp.gce", "mjx_emp.replay",
+     "mjx_emp.metrics"],
+    ["mjx_emp.rollout.hierarchy", "mjx_emp.rollout.collect"],
+    ["mjx_emp.nets"],
+    ["mjx_emp.learners.common", "mjx_emp.learners.ddpg", "mjx_emp.learners.goal_space"],
+    ["mjx_emp.algos.he.config", "mjx_emp.algos.he.agent", "mjx_emp.algos.he.presets"],
+    ["mjx_emp.downstream"],
+    ["mjx_emp.commands"],
+    ["mjx_emp.run.checkpoint", "mjx_emp.run.directory", "mjx_emp.run.evaluate"],
+    ["mjx_emp.viz.plots", "mjx_emp.viz.render"],
+    ["mjx_emp.cli"],
+]
+LAYER_OF = {module: depth for depth, modules in enumerate(LAYERS) for module in modules}
+
+
+def module_name(path: Path) -> str:
+    parts = path.relative_to(ROOT).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def imports(path: Path) -> list[tuple[str, list[str]]]:
+    """(module, imported names) of every import in ``path``, function-local ones included."""
+    found = []
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("mjx_emp"):
+            names = [alias.name for alias in node.names]
+            submodules = [f"{node.module}.{n}" for n in names if f"{node.module}.{n}" in LAYER_OF]
+            found += [(m, []) for m in submodules] or [(node.module, names)]
+        elif isinstance(node, ast.Import):
+            found += [(alias.name, []) for alias in node.names if alias.name.startswith("mjx_emp")]
+    return found
+
+
+def package_modules() -> list[Path]:
+    return [p for p in PACKAGE.rglob("*.py") if p.name != "__init__.py"]
+
+
+def test_every_module_has_a_layer():
+    assert sorted(module_name(p) for p in package_modules()) == sorted(LAYER_OF)
+
+
+def test_imports_only_go_down_the_layers():
+    upward = [
+        f"{module_name(p)} imports {target}"
+        for p in package_modules()
+        for target, _ in imports(p)
+        if LAYER_OF[target] > LAYER_OF[module_name(p)]
+    ]
+    assert not upward, upward
+
+
+def test_no_module_imports_another_modules_private_names():
+    sources = package_modules() + [*ROOT.glob("tests/*.py"), *ROOT.glob("benchmarks/*.py"),
+                                   *ROOT.glob("experiments/*.py")]
+    private = [
+        f"{p.relative_to(ROOT)}: {name} from {target}"
+        for p in sources
+        for target, names in imports(p)
+        for name in names
+        if name.startswith("_") and name != "__version__"
+    ]
+    assert not private, private
