@@ -35,14 +35,14 @@ def _train(cfg, stop) -> dict:
     state = trainer.init()
     start = time.perf_counter()
     epochs = 0
-    while not stop(epochs, float(state.env_steps)):
+    while not stop(epochs, float(state.env_steps.value())):
         state, _ = trainer.train_epoch(state)
         epochs += 1
     jax.block_until_ready(state)
     top = trainer.goal_spaces(state)[-1]
     evaluation = trainer.evaluate(state, cfg.k - 1, jax.random.key(7), rounds=8)
     return {"k": cfg.k, "n": list(cfg.n), "num_envs": cfg.num_envs, "epochs": epochs,
-            "env_steps": float(state.env_steps), "seconds": time.perf_counter() - start,
+            "env_steps": float(state.env_steps.value()), "seconds": time.perf_counter() - start,
             "top_goal_space": top, "top_success": evaluation["success"],
             "all_levels": trainer.goal_spaces(state)}
 

@@ -32,6 +32,7 @@ from flax import struct
 
 from mjx_emp.algos.he.agent import Trainer, TrainState
 from mjx_emp.algos.he.config import Phase2Config, check_phase2_config
+from mjx_emp.counters import StepCounter
 from mjx_emp.learners.common import all_finite
 from mjx_emp.learners.ddpg import GCLearner, GCRow, ddpg_losses, gc_learner_step, gc_row
 from mjx_emp.metrics import epoch_header, running_min_distance
@@ -59,7 +60,7 @@ class Phase2State:
     replay: ReplayBuffer
     key: jax.Array
     epoch: jax.Array
-    env_steps: jax.Array
+    env_steps: StepCounter
 
 
 @struct.dataclass
@@ -140,7 +141,7 @@ class Phase2Trainer:
         return Phase2State(
             skills=tuple(g.actor for g in skills_state.gc), boxes=tuple(g.actor for g in skills_state.gs),
             learner=learner, replay=replay_init(row, cfg.replay_capacity), key=key,
-            epoch=jnp.zeros((), jnp.int32), env_steps=jnp.zeros((), jnp.float32),
+            epoch=jnp.zeros((), jnp.int32), env_steps=StepCounter.zero(),
         )
 
     # ---- episodes -------------------------------------------------------------------
@@ -197,7 +198,7 @@ class Phase2Trainer:
             h, params, self.start, None, first, chunk_steps, self.max_chunks(), absorb,
             (state.replay, running, CollectTotals.zero()),
         )
-        return state.replace(replay=replay, env_steps=state.env_steps + totals.env_steps), totals
+        return state.replace(replay=replay, env_steps=state.env_steps.add(totals.env_steps)), totals
 
     # ---- learning -------------------------------------------------------------------
     def losses(self, learner: GCLearner, box: Params, batch: GCRow):

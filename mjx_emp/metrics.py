@@ -94,11 +94,11 @@ def aggregate_phase2(reports: Sequence[dict]) -> dict:
 def epoch_header(state: Any, epoch_env_steps: float, seconds: float) -> dict[str, Any]:
     """The fields every epoch's metrics line starts with: counters and throughput.
 
-    ``state`` is any train state with ``epoch`` and ``env_steps`` counters (phase 1 or 2).
+    ``state`` is any train state with an ``epoch`` array and an ``env_steps`` StepCounter.
     """
     return {
         "epoch": int(state.epoch),
-        "env_steps": float(state.env_steps),
+        "env_steps": float(state.env_steps.value()),
         "epoch_env_steps": epoch_env_steps,
         "seconds": seconds,
         "env_steps_per_s": epoch_env_steps / seconds if seconds > 0 else None,

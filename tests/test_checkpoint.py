@@ -83,6 +83,27 @@ def test_restore_gives_back_the_saved_state_bit_for_bit(saved_run):
         assert_bitwise_equal(checkpoints.restore(1, states[1], TINY), states[1])
 
 
+def test_a_checkpoint_from_before_exact_step_counters_restores_with_its_count(saved_run, tmp_path):
+    _, states = saved_run
+    state = states[2]
+    old_form = state.replace(env_steps=jnp.float32(state.env_steps.value()))  # how they were saved
+    assert {"path": ".env_steps", "shape": [], "dtype": "float32", "key": False} in layout_of(old_form)
+    with Checkpoints(tmp_path, keep=1) as checkpoints:
+        checkpoints.save(2, old_form, TINY)
+        checkpoints.wait()
+        assert_bitwise_equal(checkpoints.restore(2, jax.eval_shape(lambda: state), TINY), state)
+
+
+def test_a_layout_no_upgrade_explains_is_refused_naming_the_array(saved_run, tmp_path):
+    _, states = saved_run
+    state = states[2]
+    with Checkpoints(tmp_path, keep=1) as checkpoints:
+        checkpoints.save(2, state.replace(epoch=jnp.zeros(2, jnp.int32)), TINY)
+        checkpoints.wait()
+        with pytest.raises(CheckpointError, match=r"does not fit this version's train state: array \.epoch is"):
+            checkpoints.restore(2, state, TINY)
+
+
 def test_config_mismatch_names_the_checkpoint_file_and_the_field(saved_run):
     run_dir, states = saved_run
     with Checkpoints(run_dir) as checkpoints, pytest.raises(

@@ -22,8 +22,9 @@ from mjx_emp.rollout.hierarchy import EpisodeEnd, Hierarchy, RolloutState, Rollo
 
 @struct.dataclass
 class CollectTotals:
-    """Running sums over a collect call: physics steps, transitions kept, first episodes, how
-    many of those reached their goal, the sum of their distances to goal, flip resets."""
+    """Running sums over a collect call: primitive steps (int32, exact: one call is far below
+    2^31 steps), transitions kept, first episodes, how many of those reached their goal, the
+    sum of their distances to goal, flip resets."""
 
     env_steps: jax.Array
     transitions: jax.Array
@@ -34,16 +35,15 @@ class CollectTotals:
 
     @classmethod
     def zero(cls) -> CollectTotals:
-        zero = jnp.zeros((), jnp.float32)
-        return cls(env_steps=zero, transitions=jnp.int32(0), episodes=jnp.int32(0), reached=jnp.int32(0),
-                   distance=zero, flip_resets=jnp.int32(0))
+        return cls(env_steps=jnp.int32(0), transitions=jnp.int32(0), episodes=jnp.int32(0), reached=jnp.int32(0),
+                   distance=jnp.zeros((), jnp.float32), flip_resets=jnp.int32(0))
 
     def add(self, stats: RolloutStats, transitions: jax.Array, first_episode: jax.Array,
             reached: jax.Array, distance: jax.Array) -> CollectTotals:
         """These totals plus one chunk: its stats, kept-transition mask, first-episode mask
         (with per-row reached flags and distances, counted only where first_episode)."""
         return CollectTotals(
-            env_steps=self.env_steps + stats.primitive_steps.astype(jnp.float32),
+            env_steps=self.env_steps + stats.primitive_steps,
             transitions=self.transitions + transitions.sum(),
             episodes=self.episodes + first_episode.sum(),
             reached=self.reached + (first_episode & reached).sum(),

@@ -27,6 +27,7 @@ import orbax.checkpoint as ocp
 
 from mjx_emp.algos.he.config import TrainConfig
 from mjx_emp.checks import config_from_dict
+from mjx_emp.counters import DIGIT_BITS
 from mjx_emp.errors import CheckpointError
 
 CHECKPOINT_SUBDIR = "checkpoints"
@@ -100,6 +101,53 @@ def unpack(packed: dict[str, Any], template: Any) -> Any:
             value = jax.random.wrap_key_data(value, impl=impl)
         rebuilt.append(value)
     return jax.tree.unflatten(treedef, rebuilt)
+
+
+def arrays_by_path(packed: dict[str, Any], layout: list[dict]) -> dict[str, np.ndarray]:
+    """Split ``pack``'s flat per-dtype arrays back into one host array per layout path."""
+    offsets = dict.fromkeys(packed, 0)
+    arrays = {}
+    for entry in layout:
+        size = int(np.prod(entry["shape"]))
+        start = offsets.get(entry["dtype"], 0)
+        flat = np.asarray(packed[entry["dtype"]])[start:start + size] if size else np.zeros(0, entry["dtype"])
+        offsets[entry["dtype"]] = start + size
+        arrays[entry["path"]] = flat.reshape(entry["shape"])
+    return arrays
+
+
+def pack_by_layout(arrays: dict[str, np.ndarray], layout: list[dict]) -> dict[str, np.ndarray]:
+    """Inverse of :func:`arrays_by_path`: the flat per-dtype arrays of ``layout``'s order."""
+    groups: dict[str, list[np.ndarray]] = {}
+    for entry in layout:
+        groups.setdefault(entry["dtype"], []).append(np.asarray(arrays[entry["path"]], entry["dtype"]).ravel())
+    packed = {name: np.concatenate(parts) for name, parts in groups.items()}
+    return {name: array for name, array in packed.items() if array.size}
+
+
+def upgrade_float_step_counters(arrays: dict[str, np.ndarray], expected: list[dict]) -> dict[str, np.ndarray]:
+    """Checkpoints written before step counters were exact hold ``env_steps`` as one float32;
+    today's states hold a :class:`~mjx_emp.counters.StepCounter` (``.hi``, ``.lo`` int32)."""
+    wanted = {entry["path"] for entry in expected}
+    upgraded = dict(arrays)
+    for path, value in arrays.items():
+        if f"{path}.hi" in wanted and f"{path}.lo" in wanted and value.shape == () and value.dtype == np.float32:
+            hi, lo = divmod(int(value), 1 << DIGIT_BITS)
+            del upgraded[path]
+            upgraded[f"{path}.hi"], upgraded[f"{path}.lo"] = np.int32(hi), np.int32(lo)
+    return upgraded
+
+
+UPGRADES = (upgrade_float_step_counters,)
+"""Conversions of arrays saved by earlier versions, applied in order when a checkpoint's
+layout is not today's. Each maps {path: array} to {path: array} given today's layout."""
+
+
+def upgraded_layout(arrays: dict[str, np.ndarray], like: list[dict]) -> list[dict]:
+    """The layout of ``arrays`` in ``like``'s order where paths match (for error messages)."""
+    known = {entry["path"]: entry for entry in like}
+    return [{"path": path, "shape": list(value.shape), "dtype": value.dtype.name,
+             "key": known.get(path, {}).get("key", False)} for path, value in arrays.items()]
 
 
 def layout_mismatch(saved: list[dict], expected: list[dict]) -> str | None:
@@ -207,17 +255,25 @@ class Checkpoints:
             saved_layout = self.manager.restore(epoch, args=ocp.args.Composite(layout=ocp.args.JsonRestore())).layout
         except Exception as err:  # orbax and JSON raise many types; all mean "unreadable"
             raise CheckpointError(f"{step_dir / 'layout'}: unreadable ({type(err).__name__}: {err})") from err
-        mismatch = layout_mismatch(saved_layout, layout)
-        if mismatch:
-            raise CheckpointError(f"{step_dir / 'layout'} does not fit this version's train state: {mismatch}")
+        current = layout_mismatch(saved_layout, layout) is None
         try:
             restored = self.manager.restore(epoch, args=ocp.args.Composite(
-                state=ocp.args.StandardRestore(packed_shapes(layout)),
+                state=ocp.args.StandardRestore(packed_shapes(saved_layout)),
             ))
         except Exception as err:  # truncated or missing files surface as many error types
             reason = str(err).split(" [tensorstore_spec=")[0]  # drop tensorstore's long spec dump
             raise CheckpointError(f"{step_dir / 'state'}: unreadable ({type(err).__name__}: {reason})") from err
-        return unpack(restored.state, template)
+        if current:
+            return unpack(restored.state, template)
+        arrays = arrays_by_path(restored.state, saved_layout)
+        for upgrade in UPGRADES:
+            arrays = upgrade(arrays, layout)
+        got = {entry["path"]: entry for entry in upgraded_layout(arrays, layout)}
+        mismatch = layout_mismatch([got.get(e["path"], {**e, "shape": "(missing)"}) for e in layout], layout)
+        if mismatch or len(got) != len(layout):
+            mismatch = mismatch or f"{len(got)} arrays, expected {len(layout)}"
+            raise CheckpointError(f"{step_dir / 'layout'} does not fit this version's train state: {mismatch}")
+        return unpack(pack_by_layout(arrays, layout), template)
 
     def restore_latest(self, template: Any, expected: Any, fallback: bool = False) -> tuple[int, Any]:
         """The newest checkpoint that restores, as ``(epoch, state)``.

@@ -29,7 +29,7 @@ def phase1_figures(trainer, state, key, episodes: int) -> dict:
         levels.append({"level": level, **box, **result, "episodes": rounds * trainer.cfg.num_envs})
     paths = trainer.skill_paths(state, jax.random.fold_in(key, len(levels)), COVERAGE_SKILLS)
     top = levels[-1]
-    return {"epoch": int(state.epoch), "env_steps": float(state.env_steps), "levels": levels,
+    return {"epoch": int(state.epoch), "env_steps": float(state.env_steps.value()), "levels": levels,
             "coverage_cells": coverage_cells(*paths), "volume_x_success": top["volume"] * top["success"]}
 
 

@@ -28,6 +28,7 @@ from flax import struct
 
 from mjx_emp import gce
 from mjx_emp.algos.he.config import TrainConfig, check_train_config
+from mjx_emp.counters import StepCounter
 from mjx_emp.envs.env import Env, make_env
 from mjx_emp.learners.common import actor_critic_step, all_finite
 from mjx_emp.learners.ddpg import GCLearner, GCRow, ddpg_losses, gc_learner_step, gc_row, relabel_goals
@@ -88,7 +89,7 @@ class TrainState:
     chain: RolloutState
     key: jax.Array
     epoch: jax.Array
-    env_steps: jax.Array
+    env_steps: StepCounter
 
 
 @struct.dataclass
@@ -237,7 +238,7 @@ class Trainer:
         state = TrainState(
             gc=tuple(gcs), gs=tuple(gss), replay=tuple(replay), gs_replay=tuple(gs_replay),
             starts=tuple(starts), chain=None, key=key,
-            epoch=jnp.zeros((), jnp.int32), env_steps=jnp.zeros((), jnp.float32),
+            epoch=jnp.zeros((), jnp.int32), env_steps=StepCounter.zero(),
         )
         params, start_params = self.rollout_inputs(state, jnp.int32(cfg.k), jnp.int32(MODE_STARTS))
         chain = init_rollout(self.hierarchy, params, self.start, start_params, chain_key, cfg.num_envs, cfg.k)
@@ -346,7 +347,7 @@ class Trainer:
         chain = jax.lax.cond(is_chain, lambda: rs, lambda: state.chain)
         state = state.replace(
             replay=replay, gs_replay=gs_replay, starts=starts, chain=chain,
-            env_steps=state.env_steps + totals.env_steps,
+            env_steps=state.env_steps.add(totals.env_steps),
         )
         return state, totals
 
