@@ -12,7 +12,8 @@ from pathlib import Path
 
 import tyro
 
-from mjx_emp.algos.he.presets import PHASE2_PRESETS, PRESETS, phase2_preset_for
+from mjx_emp.algos.he.presets import PHASE2_PRESETS, phase2_preset_for
+from mjx_emp.algos.registry import all_presets
 from mjx_emp.checks import check_levels
 from mjx_emp.commands import (
     EvalExperiment,
@@ -250,7 +251,7 @@ def main(argv: list[str] | None = None) -> None:
         configure_headless_gl()  # before anything imports mujoco
     if argv[:1] == ["presets"]:
         print("phase 1 (mjx-emp train PRESET):")
-        for name, (description, _) in PRESETS.items():
+        for name, (description, _) in all_presets().items():
             print(f"  {name:24s} {description}")
         print("phase 2 (mjx-emp phase2 [PRESET] RUN_DIR):")
         for name, (description, phase1, _) in PHASE2_PRESETS.items():
@@ -264,7 +265,7 @@ def main(argv: list[str] | None = None) -> None:
             exp = tyro.cli(ResumeExperiment, args=argv[1:], prog="mjx-emp train --resume")
             main_guarded(run.resume, exp)
             return
-        presets = {name: (desc, TrainExperiment(config=cfg)) for name, (desc, cfg) in PRESETS.items()}
+        presets = {name: (desc, TrainExperiment(config=cfg)) for name, (desc, cfg) in all_presets().items()}
         exp = tyro.extras.overridable_config_cli(presets, args=argv[1:], prog="mjx-emp train")
         main_guarded(run.start, exp)
         return

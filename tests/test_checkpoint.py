@@ -18,8 +18,7 @@ from tiny import SMALL, TINY, mjx_emp, run_cli, tiny_after_two_epochs, tiny_trai
 
 from mjx_emp import cli
 from mjx_emp.algos.he.agent import Trainer
-from mjx_emp.algos.he.config import TrainConfig
-from mjx_emp.checks import config_from_dict
+from mjx_emp.algos.registry import config_from_json
 from mjx_emp.errors import CheckpointError, TrainingDiverged
 from mjx_emp.run.checkpoint import Checkpoints, layout_mismatch, layout_of, pack, unpack
 from mjx_emp.run.directory import keep_metrics_through, train_epochs
@@ -167,7 +166,7 @@ def kill_when(process: subprocess.Popen, ready, timeout: float = 300) -> None:
 
 
 def final_state(run_dir: Path, epoch: int):
-    cfg = config_from_dict(json.loads((run_dir / "config.json").read_text()), TrainConfig)
+    cfg = config_from_json(json.loads((run_dir / "config.json").read_text()))
     with Checkpoints(run_dir) as checkpoints:
         assert epoch in checkpoints.epochs()
         return checkpoints.restore(epoch, jax.eval_shape(Trainer(cfg).init), cfg)

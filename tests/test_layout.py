@@ -15,7 +15,7 @@ LAYERS = [
     ["mjx_emp.rollout.hierarchy", "mjx_emp.rollout.collect"],
     ["mjx_emp.nets"],
     ["mjx_emp.learners.common", "mjx_emp.learners.ddpg", "mjx_emp.learners.goal_space"],
-    ["mjx_emp.algos.he.config", "mjx_emp.algos.he.agent", "mjx_emp.algos.he.presets"],
+    ["mjx_emp.algos.he.config", "mjx_emp.algos.he.agent", "mjx_emp.algos.he.presets", "mjx_emp.algos.registry"],
     ["mjx_emp.downstream"],
     ["mjx_emp.commands"],
     ["mjx_emp.run.checkpoint", "mjx_emp.run.directory", "mjx_emp.run.evaluate"],

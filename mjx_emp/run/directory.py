@@ -1,6 +1,6 @@
 """Training runs in their directories: config, metrics, checkpoints, progress, resume.
 
-Layout of RUN_DIR: ``config.json`` (the resolved TrainConfig), ``metrics.jsonl`` (one JSON
+Layout of RUN_DIR: ``config.json`` (the resolved config and its algorithm), ``metrics.jsonl`` (one JSON
 line per finished epoch) and ``checkpoints/<epoch>/`` (orbax; epoch 0 is the initial state).
 A phase-2 directory (by default RUN_DIR/phase2) has the same layout with a Phase2Config,
 plus ``skills.json``, the phase-1 config of the skills it builds on.
@@ -20,7 +20,8 @@ import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
-from mjx_emp.algos.he.config import Phase2Config, TrainConfig, check_phase2_config, check_train_config
+from mjx_emp.algos.he.config import Phase2Config, TrainConfig, check_phase2_config
+from mjx_emp.algos.registry import algorithm_of, config_from_json, config_to_json, make_agent
 from mjx_emp.checks import config_from_dict
 from mjx_emp.commands import Phase2Experiment, ResumeExperiment, TrainExperiment
 from mjx_emp.errors import CheckpointError, ConfigError, RenderError, TrainingDiverged
@@ -60,12 +61,17 @@ def write_atomically(path: Path, text: str) -> None:
     os.replace(tmp, path)
 
 
-def read_run_config(run_dir: Path, field: str = "resume", config_type: type = TrainConfig,
+def read_run_config(run_dir: Path, field: str = "resume", config_type: type | None = None,
                     file: str = CONFIG_FILE):
-    """The config saved in a run directory; errors name the file and the CLI ``field``."""
+    """The config saved in a run directory; errors name the file and the CLI ``field``.
+
+    Without ``config_type`` the file holds an algorithm's config, which names its algorithm
+    (see :mod:`mjx_emp.algos.registry`); phase-2 directories pass ``Phase2Config``.
+    """
     path = run_dir / file
     try:
-        return config_from_dict(json.loads(path.read_text()), config_type)
+        values = json.loads(path.read_text())
+        return config_from_json(values) if config_type is None else config_from_dict(values, config_type)
     except FileNotFoundError as err:
         raise ConfigError(f"{field}: {str(run_dir)!r} has no {file}; is it a run directory?") from err
     except (json.JSONDecodeError, TypeError, ConfigError) as err:
@@ -111,7 +117,7 @@ def progress_reporter(total_epochs: int, first_epoch: int,
 def train_epochs(trainer, state, checkpoints, run_dir: Path, report: Callable[[dict], None]):
     """Train until ``trainer.cfg.epochs``, checkpointing and logging each finished epoch.
 
-    ``trainer`` is a phase-1 Trainer or a Phase2Trainer (both offer ``train_epoch``,
+    ``trainer`` is any algorithm's agent or a Phase2Trainer (each offers ``train_epoch``,
     ``divergence`` and ``metrics``). Raises TrainingDiverged, without saving, when an epoch's
     losses or parameters are not finite; the newest checkpoint is then the last good epoch.
     """
@@ -171,26 +177,31 @@ def _fresh_run_dir(path: str, field: str, what: str, command: str) -> Path:
     return run_dir
 
 
+def config_json(cfg) -> dict:
+    """config.json's form of ``cfg``: an algorithm's config records its algorithm; a phase-2
+    config is its fields alone."""
+    return dataclasses.asdict(cfg) if isinstance(cfg, Phase2Config) else config_to_json(cfg)
+
+
 def _train_new(trainer, state, run_dir: Path, keep_checkpoints: int, config_type: type):
     """Write the config, checkpoint ``state`` as epoch 0, and train to the end."""
     from mjx_emp.run.checkpoint import Checkpoints
 
-    write_atomically(run_dir / CONFIG_FILE, json.dumps(dataclasses.asdict(trainer.cfg), indent=1))
+    write_atomically(run_dir / CONFIG_FILE, json.dumps(config_json(trainer.cfg), indent=1))
     checkpoints = Checkpoints(run_dir, keep_checkpoints, config_type)
     checkpoints.save(0, state, trainer.cfg)
     return _train_to_the_end(trainer, state, checkpoints, run_dir)
 
 
 def start(exp: TrainExperiment):
-    """Train a new run; returns the final TrainState."""
-    check_train_config(exp.config)
+    """Train a new run of the config's algorithm; returns the final state."""
+    algorithm = algorithm_of(exp.config)
+    algorithm.check(exp.config)
     _check_keep(exp.keep_checkpoints)
     run_dir = _fresh_run_dir(exp.run_dir or default_run_dir(exp.config), "run_dir", "a run", "mjx-emp train")
-    from mjx_emp.algos.he.agent import Trainer
-
     print(f"run directory: {run_dir}", flush=True)
-    trainer = Trainer(exp.config)
-    return _train_new(trainer, trainer.init(), run_dir, exp.keep_checkpoints, TrainConfig)
+    trainer = make_agent(exp.config)
+    return _train_new(trainer, trainer.init(), run_dir, exp.keep_checkpoints, algorithm.config_type)
 
 
 def load_run(run_dir: Path, fallback: bool = False, epochs: int | None = None, field: str = "run_dir",
@@ -202,15 +213,13 @@ def load_run(run_dir: Path, fallback: bool = False, epochs: int | None = None, f
     """
     import jax
 
-    from mjx_emp.algos.he.agent import Trainer
     from mjx_emp.run.checkpoint import Checkpoints
 
     cfg = read_run_config(Path(run_dir), field)
     if epochs is not None:
         cfg = dataclasses.replace(cfg, epochs=epochs)
-    check_train_config(cfg)
-    trainer = Trainer(cfg)
-    with Checkpoints(Path(run_dir)) as checkpoints:
+    trainer = make_agent(cfg)
+    with Checkpoints(Path(run_dir), config_type=type(cfg)) as checkpoints:
         template = jax.eval_shape(trainer.init)
         if epoch is None:
             epoch, state = checkpoints.restore_latest(template, cfg, fallback)
@@ -221,7 +230,7 @@ def load_run(run_dir: Path, fallback: bool = False, epochs: int | None = None, f
     return trainer, epoch, state
 
 
-def _resume(exp: ResumeExperiment, load: Callable, config_type: type):
+def _resume(exp: ResumeExperiment, load: Callable):
     """Continue a run directory from its newest good checkpoint (``load`` restores it)."""
     _check_keep(exp.keep_checkpoints)
     run_dir = Path(exp.resume)
@@ -230,14 +239,14 @@ def _resume(exp: ResumeExperiment, load: Callable, config_type: type):
 
     print(f"resuming {run_dir} from epoch {epoch}", flush=True)
     keep_metrics_through(run_dir / METRICS_FILE, epoch)
-    write_atomically(run_dir / CONFIG_FILE, json.dumps(dataclasses.asdict(trainer.cfg), indent=1))
-    checkpoints = Checkpoints(run_dir, exp.keep_checkpoints, config_type)
+    write_atomically(run_dir / CONFIG_FILE, json.dumps(config_json(trainer.cfg), indent=1))
+    checkpoints = Checkpoints(run_dir, exp.keep_checkpoints, type(trainer.cfg))
     return _train_to_the_end(trainer, state, checkpoints, run_dir)
 
 
 def resume(exp: ResumeExperiment):
     """Continue a phase-1 run from its newest good checkpoint; returns the final TrainState."""
-    return _resume(exp, load_run, TrainConfig)
+    return _resume(exp, load_run)
 
 
 def start_phase2(exp: Phase2Experiment):
@@ -254,7 +263,7 @@ def start_phase2(exp: Phase2Experiment):
     trainer = Phase2Trainer(skills, cfg)
     out = _fresh_run_dir(exp.out or str(Path(exp.run_dir) / PHASE2_SUBDIR), "out", "a phase-2 run", "mjx-emp phase2")
     print(f"phase 2 on the skills of {exp.run_dir} (epoch {epoch}), writing to {out}", flush=True)
-    write_atomically(out / SKILLS_FILE, json.dumps(dataclasses.asdict(skills.cfg), indent=1))
+    write_atomically(out / SKILLS_FILE, json.dumps(config_json(skills.cfg), indent=1))
     return _train_new(trainer, trainer.init(skills_state), out, exp.keep_checkpoints, Phase2Config)
 
 
@@ -265,7 +274,6 @@ def load_phase2(phase2_dir: Path, fallback: bool = False, epochs: int | None = N
     """
     import jax
 
-    from mjx_emp.algos.he.agent import Trainer
     from mjx_emp.downstream import Phase2Trainer
     from mjx_emp.run.checkpoint import Checkpoints
 
@@ -273,9 +281,8 @@ def load_phase2(phase2_dir: Path, fallback: bool = False, epochs: int | None = N
     cfg = read_run_config(phase2_dir, field, Phase2Config)
     if epochs is not None:
         cfg = dataclasses.replace(cfg, epochs=epochs)
-    skills_cfg = read_run_config(phase2_dir, field, TrainConfig, SKILLS_FILE)
-    check_train_config(skills_cfg)
-    trainer = Phase2Trainer(Trainer(skills_cfg), cfg)
+    skills_cfg = read_run_config(phase2_dir, field, file=SKILLS_FILE)
+    trainer = Phase2Trainer(make_agent(skills_cfg), cfg)
     template = jax.eval_shape(trainer.init, jax.eval_shape(trainer.skills.init))
     with Checkpoints(phase2_dir, config_type=Phase2Config) as checkpoints:
         epoch, state = checkpoints.restore_latest(template, cfg, fallback)
@@ -284,7 +291,7 @@ def load_phase2(phase2_dir: Path, fallback: bool = False, epochs: int | None = N
 
 def resume_phase2(exp: ResumeExperiment):
     """Continue a phase-2 directory from its newest good checkpoint; returns the final state."""
-    return _resume(exp, load_phase2, Phase2Config)
+    return _resume(exp, load_phase2)
 
 
 def main_guarded(command: Callable, exp) -> None:

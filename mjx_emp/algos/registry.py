@@ -1,0 +1,108 @@
+"""Skill-learning algorithms by name: each a config type, its check, presets and agent.
+
+A run directory's ``config.json`` records the algorithm beside the config's fields
+(``"algorithm": "he"``; a file without the key is from before the registry and is HE), so
+the run layer can rebuild any algorithm's agent from a run directory. An agent is what
+:class:`Agent` describes: the run loop, checkpoints and reports need nothing else.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Mapping
+from typing import Any, Protocol
+
+from mjx_emp.algos.he.config import TrainConfig, check_train_config
+from mjx_emp.algos.he.presets import PRESETS as HE_PRESETS
+from mjx_emp.checks import config_from_dict
+from mjx_emp.errors import ConfigError
+
+ALGORITHM_KEY = "algorithm"
+"""The key of config.json that names the algorithm."""
+
+
+class Agent(Protocol):
+    """The static side of an algorithm for one config: pure functions over its state pytree."""
+
+    cfg: Any
+
+    def init(self, key: Any = None) -> Any:
+        """A fresh state (parameters, buffers, keys, counters) for ``cfg``."""
+
+    def train_epoch(self, state: Any) -> tuple[Any, Any]:
+        """One epoch as one jitted call: (new state, per-item stats)."""
+
+    def metrics(self, state: Any, stats: Any, seconds: float) -> dict[str, Any]:
+        """One JSON-ready line of an epoch's metrics."""
+
+    def divergence(self, state: Any, stats: Any) -> str | None:
+        """Why this epoch must not be kept (a non-finite loss or parameter), or None."""
+
+    def describe(self, metrics: dict) -> str:
+        """A short human-readable summary of an epoch's metrics."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Algorithm:
+    """One algorithm: its name, config dataclass, config check, presets and agent builder.
+
+    ``make_agent`` imports JAX when called; everything else is plain Python, so the CLI
+    can list presets and reject bad configs before anything compiles.
+    """
+
+    name: str
+    config_type: type
+    check: Callable[[Any], None]
+    presets: Mapping[str, tuple[str, Any]]
+    make_agent: Callable[[Any], Agent]
+
+
+def _he_agent(cfg: TrainConfig) -> Agent:
+    from mjx_emp.algos.he.agent import Trainer  # deferred: JAX loads only when an agent is built
+
+    return Trainer(cfg)
+
+
+ALGORITHMS: dict[str, Algorithm] = {
+    "he": Algorithm("he", TrainConfig, check_train_config, HE_PRESETS, _he_agent),
+}
+
+
+def algorithm_of(cfg: Any) -> Algorithm:
+    """The algorithm whose config type ``cfg`` is."""
+    for algorithm in ALGORITHMS.values():
+        if type(cfg) is algorithm.config_type:
+            return algorithm
+    raise ConfigError(f"config: a {type(cfg).__name__} belongs to no algorithm; known: {sorted(ALGORITHMS)}")
+
+
+def config_to_json(cfg: Any) -> dict[str, Any]:
+    """The JSON form of a config as config.json stores it: the algorithm's name, then the fields."""
+    return {ALGORITHM_KEY: algorithm_of(cfg).name, **dataclasses.asdict(cfg)}
+
+
+def config_from_json(values: dict[str, Any]) -> Any:
+    """A config back from config.json's form (without the algorithm key: HE, as older runs)."""
+    values = dict(values)
+    name = values.pop(ALGORITHM_KEY, "he")
+    if name not in ALGORITHMS:
+        raise ConfigError(f"{ALGORITHM_KEY}: {name!r} is unknown; allowed values: {sorted(ALGORITHMS)}")
+    return config_from_dict(values, ALGORITHMS[name].config_type)
+
+
+def make_agent(cfg: Any) -> Agent:
+    """Check ``cfg`` and build its algorithm's agent."""
+    algorithm = algorithm_of(cfg)
+    algorithm.check(cfg)
+    return algorithm.make_agent(cfg)
+
+
+def all_presets() -> dict[str, tuple[str, Any]]:
+    """Every algorithm's presets by name: (description, config)."""
+    presets: dict[str, tuple[str, Any]] = {}
+    for algorithm in ALGORITHMS.values():
+        clash = sorted(set(presets) & set(algorithm.presets))
+        if clash:
+            raise ValueError(f"preset names used by two algorithms: {clash}")
+        presets.update(algorithm.presets)
+    return presets

@@ -1,0 +1,40 @@
+"""The algorithm registry: config.json names the algorithm, and runs of any algorithm rebuild."""
+
+import dataclasses
+import json
+
+import pytest
+from tiny import TINY
+
+from mjx_emp.algos.he.config import TrainConfig
+from mjx_emp.algos.he.presets import PRESETS
+from mjx_emp.algos.registry import ALGORITHMS, all_presets, config_from_json, config_to_json, make_agent
+from mjx_emp.errors import ConfigError
+
+
+def test_config_json_names_the_algorithm_and_round_trips():
+    values = json.loads(json.dumps(config_to_json(TINY)))
+    assert values["algorithm"] == "he"
+    assert config_from_json(values) == TINY
+
+
+def test_a_config_json_without_an_algorithm_is_an_older_he_run():
+    values = json.loads(json.dumps(dataclasses.asdict(TINY)))
+    assert config_from_json(values) == TINY
+
+
+def test_an_unknown_algorithm_is_refused_naming_the_key_and_the_choices():
+    with pytest.raises(ConfigError, match=r"algorithm: 'nope' is unknown; allowed values: \['he'\]"):
+        config_from_json({"algorithm": "nope", **dataclasses.asdict(TINY)})
+
+
+def test_presets_of_every_algorithm_are_listed_once():
+    presets = all_presets()
+    assert set(PRESETS) <= set(presets) and set(ALGORITHMS) == {"he"}
+    assert all(isinstance(cfg, TrainConfig) for _, cfg in presets.values())
+
+
+def test_make_agent_checks_the_config_before_building():
+    with pytest.raises(ConfigError, match="env: 'moon' is unknown"):
+        make_agent(dataclasses.replace(TINY, env="moon"))
+    assert make_agent(TINY).cfg == TINY
