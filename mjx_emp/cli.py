@@ -126,7 +126,7 @@ def render(exp: RenderExperiment) -> None:
         raise ConfigError(f"fps: must be > 0; got {exp.fps}")
     import jax
 
-    from mjx_emp.viz.render import record_phase2, record_skill_chain, render_frames, write_gif
+    from mjx_emp.viz.render import record_rollout, render_frames, write_gif
 
     if exp.phase2:
         phase2_dir = Path(exp.run_dir) / run.PHASE2_SUBDIR
@@ -134,10 +134,10 @@ def render(exp: RenderExperiment) -> None:
             raise ConfigError(f"phase2: {str(phase2_dir)!r} holds no phase-2 run; train one with "
                               f"`mjx-emp phase2 {exp.run_dir}`")
         trainer, epoch, state = run.load_phase2(phase2_dir)
-        recording = record_phase2(trainer, state, jax.random.key(exp.seed), exp.steps)
+        recording = record_rollout(trainer.greedy_episodes(state), jax.random.key(exp.seed), exp.steps)
     else:
         trainer, epoch, state = run.load_run(Path(exp.run_dir))
-        recording = record_skill_chain(trainer, state, jax.random.key(exp.seed), exp.steps)
+        recording = record_rollout(trainer.skill_chain(state), jax.random.key(exp.seed), exp.steps)
     frames = render_frames(trainer.env, recording, exp.width, exp.height, exp.distance)
     default_name = "phase2.gif" if exp.phase2 else "skills.gif"
     out = write_gif(frames, Path(exp.out or Path(exp.run_dir) / default_name), exp.fps)

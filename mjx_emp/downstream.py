@@ -39,7 +39,7 @@ from mjx_emp.metrics import epoch_header, running_min_distance
 from mjx_emp.nets import MLP, LevelParams, goal_conditioned_q, goal_features, greedy_batch, level_policy
 from mjx_emp.replay import ReplayBuffer, flatten_rows, replay_init, replay_insert, replay_sample
 from mjx_emp.rollout.collect import CollectTotals, collect
-from mjx_emp.rollout.hierarchy import Hierarchy, Params, init_rollout
+from mjx_emp.rollout.hierarchy import Hierarchy, Params, RolloutPlan, init_rollout
 from mjx_emp.tracing import count_trace
 
 TRAIN_EPOCH_TRACE = "downstream.train_epoch"
@@ -166,6 +166,12 @@ class Phase2Trainer:
             for level in range(k)
         )
         return skills + (LevelParams(actor=state.learner.actor, box=state.boxes[k - 1], noise=noise),)
+
+    def greedy_episodes(self, state: Phase2State) -> RolloutPlan:
+        """Greedy phase-2 episodes (goals from the region), showing the task's goal as level
+        k's and the subgoals below it."""
+        params = self.rollout_params(state, jnp.zeros(()))
+        return RolloutPlan(self.hierarchy, params, self.start, None, root=self.level, shown_levels=self.level + 1)
 
     def max_chunks(self) -> int:
         """Rollout calls that let every environment finish one episode (every attempt used)."""

@@ -76,6 +76,20 @@ class Hierarchy:
         return len(self.policies)
 
 
+@dataclasses.dataclass(frozen=True)
+class RolloutPlan:
+    """A rollout someone outside the agent can replay (a renderer, a plot): the hierarchy,
+    per-level params, start function and its params, the root level, and how many levels
+    from the bottom have goals worth showing."""
+
+    hierarchy: Hierarchy
+    params: tuple
+    start: StartFn
+    start_params: Any
+    root: int
+    shown_levels: int
+
+
 @struct.dataclass
 class Transition:
     """One level's experience, stacked as [T, B, ...]; rows with ``valid`` False are padding.

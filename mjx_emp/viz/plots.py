@@ -133,7 +133,7 @@ def plot_run(run_dir: Path, chains: int = 8, skills_per_chain: int = 1) -> list[
     from mjx_emp.algos.he.config import Phase2Config
     from mjx_emp.run.checkpoint import CHECKPOINT_SUBDIR
     from mjx_emp.run.directory import PHASE2_SUBDIR, load_run, read_run_config
-    from mjx_emp.viz.render import first_skills, record_skill_chain
+    from mjx_emp.viz.render import first_skills, record_rollout
 
     run_dir = Path(run_dir)
     paths = [plot_goal_space_growth(read_metrics(run_dir), run_dir / "plots" / "goal_space_growth.png")]
@@ -149,7 +149,8 @@ def plot_run(run_dir: Path, chains: int = 8, skills_per_chain: int = 1) -> list[
     start = np.asarray(trainer.env.goal_of_obs(trainer.initial_obs)).tolist()
     for name, snapshot, shown_epoch in (("goal_spaces_epoch0.png", trainer.init(), 0),
                                          ("goal_spaces.png", state, epoch)):
-        recordings = [first_skills(record_skill_chain(trainer, snapshot, jax.random.key(seed), steps), skills_per_chain)
+        plan = trainer.skill_chain(snapshot)
+        recordings = [first_skills(record_rollout(plan, jax.random.key(seed), steps), skills_per_chain)
                       for seed in range(chains)]
         trajectories = [r.qpos[:, list(trainer.env.goal_qpos)] for r in recordings]
         paths.append(plot_goal_space_boxes(start, trainer.goal_spaces(snapshot), trajectories,

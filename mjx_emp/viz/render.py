@@ -13,10 +13,14 @@ from __future__ import annotations
 import dataclasses
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from mjx_emp.errors import RenderError
+
+if TYPE_CHECKING:  # importing the rollout imports mujoco, which must wait for configure_headless_gl
+    from mjx_emp.rollout.hierarchy import RolloutPlan
 
 LEVEL_COLOURS = ((1.0, 0.8, 0.0, 0.9), (0.1, 0.75, 0.2, 0.9), (0.15, 0.35, 0.95, 0.9), (0.85, 0.1, 0.85, 0.9))
 HEADLESS_HELP = (
@@ -42,44 +46,25 @@ class Recording:
     goals: np.ndarray  # [T, k, goal_size], absolute h-coordinates
 
 
-def record_rollout(h, params, start, start_params, key, steps: int, root: int) -> Recording:
-    """Run one environment of a rollout rooted at ``root`` for ``steps`` primitive steps, step by step.
+def record_rollout(plan: RolloutPlan, key, steps: int) -> Recording:
+    """Run one environment of ``plan`` for ``steps`` primitive steps, step by step.
 
-    Records joint positions, mocap bodies and the goals of levels 0..root.
+    Records joint positions, mocap bodies and the goals of the plan's shown levels.
     """
     import jax
 
     from mjx_emp.rollout.hierarchy import jit_init_rollout, jit_rollout
 
-    rollout_state = jit_init_rollout(h, params, start, start_params, key, 1, root)
+    h, params, start, start_params = plan.hierarchy, plan.params, plan.start, plan.start_params
+    rollout_state = jit_init_rollout(h, params, start, start_params, key, 1, plan.root)
     qpos, mocap, goals = [], [], []
     for _ in range(steps):
         rollout_state = jit_rollout(h, params, start, start_params, rollout_state, 1)[0]
         data = jax.device_get(rollout_state.env.data)
         qpos.append(np.asarray(data.qpos[0]))
         mocap.append(np.asarray(data.mocap_pos[0]))
-        goals.append(np.stack([np.asarray(g[0]) for g in rollout_state.goals[: root + 1]]))
+        goals.append(np.stack([np.asarray(g[0]) for g in rollout_state.goals[: plan.shown_levels]]))
     return Recording(np.stack(qpos), np.stack(mocap), np.stack(goals))
-
-
-def record_skill_chain(trainer, state, key, steps: int) -> Recording:
-    """The greedy chain of top-level skills from the initial state (subgoals of levels 0..k-1)."""
-    import jax.numpy as jnp
-
-    from mjx_emp.algos.he.agent import MODE_STARTS
-
-    k = trainer.cfg.k
-    params, start_params = trainer.rollout_inputs(state, jnp.int32(k), jnp.int32(MODE_STARTS))
-    recording = record_rollout(trainer.hierarchy, params, trainer.start, start_params, key, steps, k)
-    return dataclasses.replace(recording, goals=recording.goals[:, :k])  # level k's goal is a placeholder
-
-
-def record_phase2(trainer, state, key, steps: int) -> Recording:
-    """Greedy phase-2 episodes: goals from the region (drawn as level k's marker) and the subgoals below."""
-    import jax.numpy as jnp
-
-    params = trainer.rollout_params(state, jnp.zeros(()))
-    return record_rollout(trainer.hierarchy, params, trainer.start, None, key, steps, trainer.level)
 
 
 def first_skills(recording: Recording, skills: int) -> Recording:

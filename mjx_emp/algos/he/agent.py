@@ -46,7 +46,7 @@ from mjx_emp.nets import (
 )
 from mjx_emp.replay import ReplayBuffer, flatten_rows, replay_clear_where, replay_init, replay_insert, replay_sample
 from mjx_emp.rollout.collect import CollectTotals, collect
-from mjx_emp.rollout.hierarchy import EpisodeEnd, Hierarchy, Params, RolloutState, init_rollout, rollout
+from mjx_emp.rollout.hierarchy import EpisodeEnd, Hierarchy, Params, RolloutPlan, RolloutState, init_rollout, rollout
 from mjx_emp.tracing import count_trace
 
 TRAIN_EPOCH_TRACE = "he.train_epoch"
@@ -262,6 +262,14 @@ class Trainer:
             gs_actors=tuple(g.actor for g in state.gs),
         )
         return params, start_params
+
+    def skill_chain(self, state: TrainState) -> RolloutPlan:
+        """The greedy chain of top-level skills from the initial state, as the start-state
+        refresh runs it (each skill's goal drawn from the top goal space), showing the
+        goals of levels 0..k-1."""
+        k = self.cfg.k
+        params, start_params = self.rollout_inputs(state, jnp.int32(k), jnp.int32(MODE_STARTS))
+        return RolloutPlan(self.hierarchy, params, self.start, start_params, root=k, shown_levels=k)
 
     def start(self, sp: StartParams, key: jax.Array):
         """A new episode at level ``sp.root``: s0 from its start buffer, z from its noisy box.
