@@ -33,6 +33,7 @@ from mjx_emp.algos.he.presets import PHASE2_PRESETS, POINT_MASS_K1, POINT_MASS_K
 from mjx_emp.commands import Phase2Experiment, TrainExperiment
 from mjx_emp.metrics import mean_and_stderr
 from mjx_emp.run import directory as run
+from mjx_emp.tables import markdown_table, mean_stderr_text
 
 AGENTS: dict[str, TrainConfig] = {
     "k1": POINT_MASS_K1,
@@ -103,14 +104,12 @@ def main(args: Args) -> None:
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(result, indent=1))
-    print("| task / agent | top goal-space volume | untrained min distance | trained min distance | trained success |")
-    print("|---|---|---|---|---|")
-    for name, row in result.items():
-        s = row["summary"]
-        print(f"| {name} | {s['top_volume']['mean']:.3g} ± {s['top_volume']['stderr']:.2g} | "
-              f"{s['untrained']['min_distance']['mean']:.3g} ± {s['untrained']['min_distance']['stderr']:.2g} | "
-              f"{s['trained']['min_distance']['mean']:.3g} ± {s['trained']['min_distance']['stderr']:.2g} | "
-              f"{s['trained']['success']['mean']:.3g} ± {s['trained']['success']['stderr']:.2g} |")
+    headers = ("task / agent", "top goal-space volume", "untrained min distance", "trained min distance",
+               "trained success")
+    rows = [(name, *(mean_stderr_text(stat) for stat in (
+        s["top_volume"], s["untrained"]["min_distance"], s["trained"]["min_distance"], s["trained"]["success"])))
+        for name, s in ((name, row["summary"]) for name, row in result.items())]
+    print(markdown_table(headers, rows))
     print(f"wrote {out}")
 
 

@@ -23,6 +23,7 @@ from mjx_emp.algos.he.agent import Trainer
 from mjx_emp.algos.he.presets import PRESETS
 from mjx_emp.metrics import mean_and_stderr
 from mjx_emp.run.evaluate import phase1_figures
+from mjx_emp.tables import markdown_table, mean_stderr_text
 
 
 @dataclasses.dataclass
@@ -77,13 +78,9 @@ def main(args: Args) -> None:
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(result, indent=1))
-    print("| preset | buffers | top volume | greedy success | coverage cells |")
-    print("|---|---|---|---|---|")
-    for preset, entry in result.items():
-        for kind, s in entry["summary"].items():
-            print(f"| {preset} | {kind} | {s['top_volume']['mean']:.3g} ± {s['top_volume']['stderr']:.2g} | "
-                  f"{s['success']['mean']:.3g} ± {s['success']['stderr']:.2g} | "
-                  f"{s['coverage_cells']['mean']:.3g} ± {s['coverage_cells']['stderr']:.2g} |")
+    rows = [(preset, kind, *(mean_stderr_text(s[name]) for name in ("top_volume", "success", "coverage_cells")))
+            for preset, entry in result.items() for kind, s in entry["summary"].items()]
+    print(markdown_table(("preset", "buffers", "top volume", "greedy success", "coverage cells"), rows))
     print(f"wrote {out}")
 
 

@@ -1,0 +1,13 @@
+"""Markdown tables the experiment scripts print."""
+
+from mjx_emp.metrics import mean_and_stderr
+from mjx_emp.tables import markdown_table, mean_stderr_text
+
+
+def test_a_table_has_a_header_a_separator_and_one_line_per_row():
+    table = markdown_table(("a", "b"), [(1, "x"), (2.5, "y")])
+    assert table.splitlines() == ["| a | b |", "|---|---|", "| 1 | x |", "| 2.5 | y |"]
+
+
+def test_mean_and_standard_error_print_with_three_and_two_digits():
+    assert mean_stderr_text(mean_and_stderr([1.0, 2.0, 4.0])) == "2.33 ± 0.88"
