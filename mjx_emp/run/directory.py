@@ -204,29 +204,34 @@ def start(exp: TrainExperiment):
     return _train_new(trainer, trainer.init(), run_dir, exp.keep_checkpoints, algorithm.config_type)
 
 
+def _restore(run_dir: Path, trainer, template, fallback: bool = False, epoch: int | None = None):
+    """``(epoch, state)`` of ``run_dir``'s newest good checkpoint, or of ``epoch``'s, for ``trainer``."""
+    from mjx_emp.run.checkpoint import Checkpoints
+
+    with Checkpoints(run_dir, config_type=type(trainer.cfg)) as checkpoints:
+        if epoch is None:
+            return checkpoints.restore_latest(template, trainer.cfg, fallback)
+        if epoch not in checkpoints.epochs():
+            raise ConfigError(f"phase1_epoch: {run_dir} has checkpoints of epochs {checkpoints.epochs()}; got {epoch}")
+        return epoch, checkpoints.restore(epoch, template, trainer.cfg)
+
+
+def _with_epochs(cfg, epochs: int | None):
+    """``cfg`` with its epoch count replaced (the one setting a resume may change), if given."""
+    return cfg if epochs is None else dataclasses.replace(cfg, epochs=epochs)
+
+
 def load_run(run_dir: Path, fallback: bool = False, epochs: int | None = None, field: str = "run_dir",
              epoch: int | None = None):
-    """A run's trainer and its newest good checkpoint (or ``epoch``'s): ``(trainer, epoch, state)``.
+    """A run's agent and its newest good checkpoint (or ``epoch``'s): ``(agent, epoch, state)``.
 
-    ``epochs`` replaces the run's epoch count (the one setting a resume may change);
-    ``field`` is the CLI field that errors about ``run_dir`` name.
+    ``epochs`` replaces the run's epoch count; ``field`` is the CLI field that errors about
+    ``run_dir`` name.
     """
     import jax
 
-    from mjx_emp.run.checkpoint import Checkpoints
-
-    cfg = read_run_config(Path(run_dir), field)
-    if epochs is not None:
-        cfg = dataclasses.replace(cfg, epochs=epochs)
-    trainer = make_agent(cfg)
-    with Checkpoints(Path(run_dir), config_type=type(cfg)) as checkpoints:
-        template = jax.eval_shape(trainer.init)
-        if epoch is None:
-            epoch, state = checkpoints.restore_latest(template, cfg, fallback)
-        elif epoch in checkpoints.epochs():
-            state = checkpoints.restore(epoch, template, cfg)
-        else:
-            raise ConfigError(f"phase1_epoch: {run_dir} has checkpoints of epochs {checkpoints.epochs()}; got {epoch}")
+    trainer = make_agent(_with_epochs(read_run_config(Path(run_dir), field), epochs))
+    epoch, state = _restore(Path(run_dir), trainer, jax.eval_shape(trainer.init), fallback, epoch)
     return trainer, epoch, state
 
 
@@ -275,17 +280,12 @@ def load_phase2(phase2_dir: Path, fallback: bool = False, epochs: int | None = N
     import jax
 
     from mjx_emp.downstream import Phase2Trainer
-    from mjx_emp.run.checkpoint import Checkpoints
 
     phase2_dir = Path(phase2_dir)
-    cfg = read_run_config(phase2_dir, field, Phase2Config)
-    if epochs is not None:
-        cfg = dataclasses.replace(cfg, epochs=epochs)
-    skills_cfg = read_run_config(phase2_dir, field, file=SKILLS_FILE)
-    trainer = Phase2Trainer(make_agent(skills_cfg), cfg)
+    cfg = _with_epochs(read_run_config(phase2_dir, field, Phase2Config), epochs)
+    trainer = Phase2Trainer(make_agent(read_run_config(phase2_dir, field, file=SKILLS_FILE)), cfg)
     template = jax.eval_shape(trainer.init, jax.eval_shape(trainer.skills.init))
-    with Checkpoints(phase2_dir, config_type=Phase2Config) as checkpoints:
-        epoch, state = checkpoints.restore_latest(template, cfg, fallback)
+    epoch, state = _restore(phase2_dir, trainer, template, fallback)
     return trainer, epoch, state
 
 
