@@ -74,8 +74,8 @@ def _noisy_buffers(state, key: jax.Array):
             return leaf
         return jax.random.uniform(jax.random.fold_in(key, hash(jax.tree_util.keystr(path)) % 2**31), leaf.shape, leaf.dtype)
 
-    buffers = jax.tree_util.tree_map_with_path(fill, (state.replay, state.gs_replay, state.starts))
-    return state.replace(replay=buffers[0], gs_replay=buffers[1], starts=buffers[2])
+    buffers = jax.tree_util.tree_map_with_path(fill, (state.replay, state.goal_space_replay, state.starts))
+    return state.replace(replay=buffers[0], goal_space_replay=buffers[1], starts=buffers[2])
 
 
 def checkpoint_cost(cfg: TrainConfig, state, repeats: int) -> dict:

@@ -64,7 +64,7 @@ class Args:
 def _phase1(base: Path, agent: str, seed: int) -> Path:
     run_dir = base / f"{agent}-s{seed}"
     if not (run_dir / run.CONFIG_FILE).exists():
-        run.start(TrainExperiment(config=dataclasses.replace(AGENTS[agent], seed=seed), run_dir=str(run_dir)))
+        run.train(TrainExperiment(config=dataclasses.replace(AGENTS[agent], seed=seed), run_dir=str(run_dir)))
     return run_dir
 
 
@@ -72,12 +72,12 @@ def _phase2(run_dir: Path, task: str, preset: str, seed: int, episodes: int) -> 
     out = run_dir / f"phase2-{task}"
     config = dataclasses.replace(PHASE2_PRESETS[preset][2], seed=seed)
     if not (out / run.CONFIG_FILE).exists():
-        run.start_phase2(Phase2Experiment(run_dir=str(run_dir), config=config, out=str(out)))
+        run.train_phase2(Phase2Experiment(run_dir=str(run_dir), config=config, out=str(out)))
     trainer, epoch, state = run.load_phase2(out)
     _, _, skills = run.load_run(run_dir)
     key = jax.random.key(1000 + seed)
     return {"run_dir": str(out), "epoch": epoch, "env_steps": float(state.env_steps),
-            "skills_top_goal_space": trainer.skills.goal_spaces(skills)[-1],
+            "skills_top_goal_space": trainer.phase1.goal_spaces(skills)[-1],
             "untrained": trainer.evaluate(trainer.init(skills), key, episodes),
             "trained": trainer.evaluate(state, key, episodes)}
 

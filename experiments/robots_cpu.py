@@ -60,7 +60,7 @@ def train_or_resume(base: Path, preset: str, seed: int, epochs: int | None) -> P
     if (run_dir / run.CONFIG_FILE).exists():
         run.resume(ResumeExperiment(resume=str(run_dir), epochs=config.epochs))
     else:
-        run.start(TrainExperiment(config=config, run_dir=str(run_dir)))
+        run.train(TrainExperiment(config=config, run_dir=str(run_dir)))
     return run_dir
 
 

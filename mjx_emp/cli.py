@@ -55,22 +55,22 @@ def run_rollout(cfg: RolloutExperiment) -> dict:
     env = make_env(cfg.env)
     key = jax.random.key(cfg.seed)
     policies, params = mlp_agent(env, len(cfg.n), cfg.hidden, cfg.subgoal_half_width, key)
-    h = Hierarchy(env, policies, n=cfg.n, eps=cfg.eps)
+    hierarchy = Hierarchy(env, policies, n=cfg.n, eps=cfg.eps)
     start = default_start(env, cfg.root_goal_half_width)
 
     t0 = time.perf_counter()
-    state = jit_init_rollout(h, params, start, None, jax.random.fold_in(key, 99), cfg.batch_size)
-    state, _, _, stats = jit_rollout(h, params, start, None, state, cfg.steps)
+    state = jit_init_rollout(hierarchy, params, start, None, jax.random.fold_in(key, 99), cfg.batch_size)
+    state, _, _, stats = jit_rollout(hierarchy, params, start, None, state, cfg.steps)
     jax.block_until_ready(stats)
     compile_s = time.perf_counter() - t0
 
     totals = {"useful": 0, "steps": 0, "episodes": 0, "nan": 0, "flip": 0}
-    reached = [0] * h.k
-    finals = [0] * h.k
+    reached = [0] * hierarchy.k
+    finals = [0] * hierarchy.k
     elapsed = 0.0
     for _ in range(cfg.calls):
         t0 = time.perf_counter()
-        state, transitions, _, stats = jit_rollout(h, params, start, None, state, cfg.steps)
+        state, transitions, _, stats = jit_rollout(hierarchy, params, start, None, state, cfg.steps)
         jax.block_until_ready(stats)
         elapsed += time.perf_counter() - t0
         totals["useful"] += int(stats.useful_steps)
@@ -83,8 +83,8 @@ def run_rollout(cfg: RolloutExperiment) -> dict:
             finals[level] += int((tr.final & tr.valid).sum())
     return {
         "env": cfg.env,
-        "k": h.k,
-        "n": list(h.n),
+        "k": hierarchy.k,
+        "n": list(hierarchy.n),
         "batch_size": cfg.batch_size,
         "primitive_steps": totals["steps"],
         "useful_step_fraction": totals["useful"] / totals["steps"],
@@ -221,7 +221,7 @@ def phase2(args: list[str]) -> None:
 
     def parse_and_start(args: list[str]) -> None:
         exp = tyro.extras.overridable_config_cli(presets, args=with_phase2_preset(args), prog="mjx-emp phase2")
-        run.start_phase2(exp)
+        run.train_phase2(exp)
 
     main_guarded(parse_and_start, args)
 
@@ -267,7 +267,7 @@ def main(argv: list[str] | None = None) -> None:
             return
         presets = {name: (desc, TrainExperiment(config=cfg)) for name, (desc, cfg) in all_presets().items()}
         exp = tyro.extras.overridable_config_cli(presets, args=argv[1:], prog="mjx-emp train")
-        main_guarded(run.start, exp)
+        main_guarded(run.train, exp)
         return
     configs = {name: config for name, (config, _) in COMMANDS.items()}
     cfg = tyro.extras.subcommand_cli_from_dict(configs, args=argv, prog="mjx-emp")

@@ -34,7 +34,7 @@ from mjx_emp.algos.he.agent import Trainer, TrainState
 from mjx_emp.algos.he.config import Phase2Config, check_phase2_config
 from mjx_emp.counters import StepCounter
 from mjx_emp.learners.common import all_finite
-from mjx_emp.learners.ddpg import GCLearner, GCRow, ddpg_losses, gc_learner_step, gc_row
+from mjx_emp.learners.ddpg import DDPGLearner, GoalTransition, ddpg_losses, ddpg_step, goal_transitions
 from mjx_emp.metrics import epoch_header, running_min_distance
 from mjx_emp.nets import MLP, LevelParams, goal_conditioned_q, goal_features, greedy_batch, level_policy
 from mjx_emp.replay import ReplayBuffer, flatten_rows, replay_init, replay_insert, replay_sample
@@ -54,9 +54,9 @@ class Phase2State:
     goal-space actors, so a phase-2 checkpoint stands on its own.
     """
 
-    skills: tuple[Params, ...]
-    boxes: tuple[Params, ...]
-    learner: GCLearner
+    skill_actors: tuple[Params, ...]
+    goal_space_actors: tuple[Params, ...]
+    learner: DDPGLearner
     replay: ReplayBuffer
     key: jax.Array
     epoch: jax.Array
@@ -85,28 +85,28 @@ class Phase2Trainer:
     phase 2's), so equal configs share compiled programs.
     """
 
-    skills: Trainer
+    phase1: Trainer
     cfg: Phase2Config
     hierarchy: Hierarchy = dataclasses.field(init=False, compare=False, repr=False)
 
     def __post_init__(self):
-        check_phase2_config(self.cfg, self.skills.env.goal_size)
-        k, phase1 = self.level, self.skills.cfg
-        policy = level_policy(self.env, self.actor_net, self.skills.learned_box(k - 1))
+        check_phase2_config(self.cfg, self.phase1.env.goal_size)
+        k, phase1 = self.level, self.phase1.cfg
+        policy = level_policy(self.env, self.actor_net, self.phase1.learned_box(k - 1))
         hierarchy = Hierarchy(
-            self.env, self.skills.hierarchy.policies[:k] + (policy,),
+            self.env, self.phase1.hierarchy.policies[:k] + (policy,),
             n=tuple(phase1.n) + (self.cfg.n,), eps=tuple(phase1.eps) + (self.cfg.eps,),
         )
         object.__setattr__(self, "hierarchy", hierarchy)
 
     @property
     def env(self):
-        return self.skills.env
+        return self.phase1.env
 
     @property
     def level(self) -> int:
         """The added level's index: k, on top of the k skill levels."""
-        return self.skills.cfg.k
+        return self.phase1.cfg.k
 
     @functools.cached_property
     def actor_net(self) -> MLP:
@@ -131,15 +131,15 @@ class Phase2Trainer:
 
     def _init(self, skills_state: TrainState, key: jax.Array) -> Phase2State:
         env, cfg = self.env, self.cfg
-        obs, goal = jnp.asarray(self.skills.initial_obs), jnp.zeros(env.goal_size)
+        obs, goal = jnp.asarray(self.phase1.initial_obs), jnp.zeros(env.goal_size)
         key, actor_key, critic_key = jax.random.split(key, 3)
         actor = self.actor_net.init(actor_key, goal_features(env, obs, goal))
         critic = self.critic_net.init(critic_key, jnp.concatenate([goal_features(env, obs, goal), goal]))
         actor_tx, critic_tx = self.optimizers
-        learner = GCLearner(actor, critic, actor, critic, actor_tx.init(actor), critic_tx.init(critic))
-        row = GCRow(obs, goal, goal, obs, jnp.zeros((), bool))
+        learner = DDPGLearner(actor, critic, actor, critic, actor_tx.init(actor), critic_tx.init(critic))
+        row = GoalTransition(obs, goal, goal, obs, jnp.zeros((), bool))
         return Phase2State(
-            skills=tuple(g.actor for g in skills_state.gc), boxes=tuple(g.actor for g in skills_state.gs),
+            skill_actors=tuple(g.actor for g in skills_state.policies), goal_space_actors=tuple(g.actor for g in skills_state.goal_spaces),
             learner=learner, replay=replay_init(row, cfg.replay_capacity), key=key,
             epoch=jnp.zeros((), jnp.int32), env_steps=StepCounter.zero(),
         )
@@ -147,7 +147,7 @@ class Phase2Trainer:
     # ---- episodes -------------------------------------------------------------------
     def region(self) -> tuple[np.ndarray, np.ndarray]:
         """The goal region as absolute (low, high) corners in goal space."""
-        centre = self.env.goal_of_obs(self.skills.initial_obs) + np.asarray(self.cfg.region_offset)
+        centre = self.env.goal_of_obs(self.phase1.initial_obs) + np.asarray(self.cfg.region_offset)
         half = np.asarray(self.cfg.region) / 2
         return centre - half, centre + half
 
@@ -156,16 +156,16 @@ class Phase2Trainer:
         env_key, goal_key = jax.random.split(key)
         low, high = self.region()
         goal = jax.random.uniform(goal_key, low.shape, minval=low, maxval=high)
-        return self.env.restore(env_key, jnp.asarray(self.skills.initial_obs)), goal, ()
+        return self.env.restore(env_key, jnp.asarray(self.phase1.initial_obs)), goal, ()
 
     def rollout_params(self, state: Phase2State, noise: jax.Array) -> tuple[LevelParams, ...]:
         """Per-level policy params: the frozen skills, then the added level with ``noise``."""
         k, zero = self.level, jnp.zeros(())
         skills = tuple(
-            LevelParams(actor=state.skills[level], box=None if level == 0 else state.boxes[level - 1], noise=zero)
+            LevelParams(actor=state.skill_actors[level], box=None if level == 0 else state.goal_space_actors[level - 1], noise=zero)
             for level in range(k)
         )
-        return skills + (LevelParams(actor=state.learner.actor, box=state.boxes[k - 1], noise=noise),)
+        return skills + (LevelParams(actor=state.learner.actor, box=state.goal_space_actors[k - 1], noise=noise),)
 
     def greedy_episodes(self, state: Phase2State) -> RolloutPlan:
         """Greedy phase-2 episodes (goals from the region), showing the task's goal as level
@@ -175,8 +175,8 @@ class Phase2Trainer:
 
     def max_chunks(self) -> int:
         """Rollout calls that let every environment finish one episode (every attempt used)."""
-        longest = self.cfg.n * math.prod(self.skills.cfg.n)
-        return math.ceil(longest / self.skills.cfg.chunk_steps) + 1
+        longest = self.cfg.n * math.prod(self.phase1.cfg.n)
+        return math.ceil(longest / self.phase1.cfg.chunk_steps) + 1
 
     def _collect(self, state: Phase2State, noise: jax.Array, store: jax.Array, key: jax.Array):
         """Run num_envs episodes (each environment to the end of its first at least).
@@ -185,14 +185,14 @@ class Phase2Trainer:
         call's :class:`CollectTotals`; ``distance`` sums each first episode's minimum
         distance to goal.
         """
-        h, k, chunk_steps = self.hierarchy, self.level, self.skills.cfg.chunk_steps
+        hierarchy, k, chunk_steps = self.hierarchy, self.level, self.phase1.cfg.chunk_steps
         params = self.rollout_params(state, noise)
-        first = init_rollout(h, params, self.start, None, key, self.cfg.num_envs, k)
+        first = init_rollout(hierarchy, params, self.start, None, key, self.cfg.num_envs, k)
 
         def absorb(kept, transitions, episodes, stats):
             replay, running, totals = kept
             top, bottom = transitions[k], transitions[0]
-            replay = replay_insert(replay, flatten_rows(gc_row(top)), flatten_rows(top.valid) & store)
+            replay = replay_insert(replay, flatten_rows(goal_transitions(top)), flatten_rows(top.valid) & store)
             distance = jnp.linalg.norm(self.env.goal_of_obs(bottom.next_obs) - top.goal, axis=-1)
             running, per_step = running_min_distance(distance, bottom.valid, top.final, running)
             counted = episodes.ended & (episodes.index == 0)
@@ -201,13 +201,13 @@ class Phase2Trainer:
 
         running = jnp.full(self.cfg.num_envs, jnp.inf)
         _, (replay, _, totals) = collect(
-            h, params, self.start, None, first, chunk_steps, self.max_chunks(), absorb,
+            hierarchy, params, self.start, None, first, chunk_steps, self.max_chunks(), absorb,
             (state.replay, running, CollectTotals.zero()),
         )
         return state.replace(replay=replay, env_steps=state.env_steps.add(totals.env_steps)), totals
 
     # ---- learning -------------------------------------------------------------------
-    def losses(self, learner: GCLearner, box: Params, batch: GCRow):
+    def losses(self, learner: DDPGLearner, box: Params, batch: GoalTransition):
         """(critic loss, actor loss) functions of one phase-2 minibatch (DDPG, as in phase 1)."""
         policy = self.hierarchy.policies[self.level]
         return ddpg_losses(
@@ -218,11 +218,11 @@ class Phase2Trainer:
     def _update(self, state: Phase2State, key: jax.Array) -> tuple[Phase2State, jax.Array]:
         cfg = self.cfg
         actor_tx, critic_tx = self.optimizers
-        box = state.boxes[self.level - 1]
+        box = state.goal_space_actors[self.level - 1]
 
-        def step(learner: GCLearner, step_key):
+        def step(learner: DDPGLearner, step_key):
             batch = replay_sample(state.replay, step_key, cfg.batch_size)
-            return gc_learner_step(learner, self.losses(learner, box, batch), actor_tx, critic_tx, cfg.tau)
+            return ddpg_step(learner, self.losses(learner, box, batch), actor_tx, critic_tx, cfg.tau)
 
         learner, losses = jax.lax.scan(step, state.learner, jax.random.split(key, cfg.grad_steps))
         return state.replace(learner=learner), losses.mean(axis=0)

@@ -9,11 +9,13 @@ import signal
 import subprocess
 import time
 from pathlib import Path
+from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from flax import struct
 from tiny import SMALL, TINY, mjx_emp, run_cli, tiny_after_two_epochs, tiny_trainer
 
 from mjx_emp import cli
@@ -93,6 +95,37 @@ def test_a_checkpoint_from_before_exact_step_counters_restores_with_its_count(sa
         assert_bitwise_equal(checkpoints.restore(2, jax.eval_shape(lambda: state), TINY), state)
 
 
+@struct.dataclass
+class TrainStateBeforeTheRestructure:
+    """Phase 1's state as checkpoints written before the restructure hold it: the same arrays
+    under the old field names, and a float32 step count."""
+
+    gc: tuple
+    gs: tuple
+    replay: tuple
+    gs_replay: tuple
+    starts: tuple
+    chain: Any
+    key: jax.Array
+    epoch: jax.Array
+    env_steps: jax.Array
+
+
+def test_a_checkpoint_from_before_the_restructure_restores_bit_for_bit(saved_run, tmp_path):
+    _, states = saved_run
+    state = states[2]
+    old = TrainStateBeforeTheRestructure(
+        gc=state.policies, gs=state.goal_spaces, replay=state.replay, gs_replay=state.goal_space_replay,
+        starts=state.starts, chain=state.chain, key=state.key, epoch=state.epoch,
+        env_steps=jnp.float32(state.env_steps.value()),
+    )
+    assert layout_of(old)[0]["path"].startswith(".gc[0]")
+    with Checkpoints(tmp_path, keep=1) as checkpoints:
+        checkpoints.save(2, old, TINY)
+        checkpoints.wait()
+        assert_bitwise_equal(checkpoints.restore(2, jax.eval_shape(lambda: state), TINY), state)
+
+
 def test_a_layout_no_upgrade_explains_is_refused_naming_the_array(saved_run, tmp_path):
     _, states = saved_run
     state = states[2]
@@ -133,8 +166,8 @@ def test_nan_stops_the_run_and_keeps_the_last_good_checkpoint(tmp_path):
     trainer, _, state, _, _ = tiny_after_two_epochs()
     good = jax.tree.map(lambda x: x.copy(), state)  # the cached state stays intact for other tests
     poisoned = jax.tree.map(lambda x: x.copy(), good)  # train_epoch donates (deletes) its input
-    actor = jax.tree.map(lambda x: jnp.full_like(x, jnp.nan), poisoned.gc[0].actor)
-    poisoned = poisoned.replace(gc=(poisoned.gc[0].replace(actor=actor), *poisoned.gc[1:]))
+    actor = jax.tree.map(lambda x: jnp.full_like(x, jnp.nan), poisoned.policies[0].actor)
+    poisoned = poisoned.replace(gc=(poisoned.policies[0].replace(actor=actor), *poisoned.policies[1:]))
     with Checkpoints(tmp_path) as checkpoints:
         checkpoints.save(2, good, TINY)
         with pytest.raises(TrainingDiverged,

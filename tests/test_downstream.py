@@ -43,14 +43,14 @@ def test_episodes_start_at_the_initial_state_with_goals_uniform_in_the_region(ti
     quarters = np.histogram(goals[:, 0], bins=4, range=(low[0], high[0]))[0]
     assert (np.abs(quarters - 500) < 80).all()
     np.testing.assert_allclose(np.asarray(jax.vmap(trainer.env.observe)(states)),
-                               np.broadcast_to(trainer.skills.initial_obs, (2000, trainer.skills.initial_obs.size)),
+                               np.broadcast_to(trainer.phase1.initial_obs, (2000, trainer.phase1.initial_obs.size)),
                                atol=1e-6)
 
 
 def test_region_is_centred_on_h_s0_plus_the_offset(tiny_phase2):
     trainer, _, _ = tiny_phase2
-    shifted = Phase2Trainer(trainer.skills, dataclasses.replace(TINY_PHASE2, region=(4.0, 2.0), region_offset=(1.0, 0.0)))
-    start = trainer.env.goal_of_obs(trainer.skills.initial_obs)
+    shifted = Phase2Trainer(trainer.phase1, dataclasses.replace(TINY_PHASE2, region=(4.0, 2.0), region_offset=(1.0, 0.0)))
+    start = trainer.env.goal_of_obs(trainer.phase1.initial_obs)
     low, high = shifted.region()
     np.testing.assert_allclose(low, start + [-1.0, -1.0])
     np.testing.assert_allclose(high, start + [3.0, 1.0])
@@ -59,12 +59,12 @@ def test_region_is_centred_on_h_s0_plus_the_offset(tiny_phase2):
 def test_subgoals_stay_inside_the_top_goal_space_even_with_exploration_noise(tiny_phase2):
     trainer, _, state = tiny_phase2
     k, env = trainer.level, trainer.env
-    obs = jnp.asarray(trainer.skills.initial_obs) + 0.5 * jax.random.normal(jax.random.key(1), (256, env.obs_size))
+    obs = jnp.asarray(trainer.phase1.initial_obs) + 0.5 * jax.random.normal(jax.random.key(1), (256, env.obs_size))
     goals = 3.0 * jax.random.normal(jax.random.key(2), (256, env.goal_size))
-    params = LevelParams(actor=state.learner.actor, box=state.boxes[k - 1], noise=jnp.asarray(2.0))
+    params = LevelParams(actor=state.learner.actor, box=state.goal_space_actors[k - 1], noise=jnp.asarray(2.0))
     keys = jax.random.split(jax.random.key(3), 256)
     subgoals = jax.vmap(trainer.hierarchy.policies[k], (None, 0, 0, 0))(params, obs, goals, keys)
-    shift, half_width = jax.vmap(trainer.skills.learned_box(k - 1), (None, 0))(state.boxes[k - 1], obs)
+    shift, half_width = jax.vmap(trainer.phase1.learned_box(k - 1), (None, 0))(state.goal_space_actors[k - 1], obs)
     assert (np.abs(np.asarray(subgoals - shift)) <= np.asarray(half_width) + 1e-5).all()
     assert np.asarray(jnp.abs(subgoals - shift) > 0.9 * half_width).any()  # the noise reaches the box's edge
 
@@ -78,8 +78,8 @@ def test_two_epochs_train_the_added_level_only_and_do_not_recompile(tiny_phase2)
     assert traces(TRAIN_EPOCH_TRACE) == compiled, "epoch 2 recompiled"
     assert int(state.epoch) == 2 and state.env_steps.value() > 0
     # The phase-1 skills and goal spaces are frozen.
-    for frozen, source in ((state.skills, tuple(g.actor for g in skills_state.gc)),
-                           (state.boxes, tuple(g.actor for g in skills_state.gs))):
+    for frozen, source in ((state.skill_actors, tuple(g.actor for g in skills_state.policies)),
+                           (state.goal_space_actors, tuple(g.actor for g in skills_state.goal_spaces))):
         for a, b in zip(jax.tree.leaves(frozen), jax.tree.leaves(source)):
             np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     assert not all(np.array_equal(a, np.asarray(b)) for a, b in zip(jax.tree.leaves(before),

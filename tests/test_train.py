@@ -16,7 +16,7 @@ from mjx_emp.algos.he.agent import MODE_EVAL, MODE_GC, MODE_GS, MODE_STARTS, TRA
 from mjx_emp.algos.he.config import TrainConfig
 from mjx_emp.envs.env import make_env
 from mjx_emp.errors import ConfigError
-from mjx_emp.learners.ddpg import GCLearner, GCRow, ddpg_losses, relabel_goals, reward_cap
+from mjx_emp.learners.ddpg import DDPGLearner, GoalTransition, ddpg_losses, relabel_goals, reward_cap
 from mjx_emp.nets import greedy_batch
 from mjx_emp.tracing import traces
 
@@ -43,7 +43,7 @@ def test_goal_space_actor_starts_at_the_initial_box_and_respects_its_bound():
         np.testing.assert_allclose(box["half_width"], TINY.init_half_width[level], rtol=1e-2)
         np.testing.assert_allclose(box["shift"], 0.0, atol=1e-2)
     net = trainer.gs_actor_net(0)
-    params = jax.tree.map(lambda x: x * 1e4, state.gs[0].actor)  # an absurd network
+    params = jax.tree.map(lambda x: x * 1e4, state.goal_spaces[0].actor)  # an absurd network
     action = net.apply(params, jnp.ones(make_env("point_mass").feature_size) * 50)
     shift, log_half_width = gce.split_goal_space_action(action)
     assert np.all(np.abs(shift) <= TINY.max_half_width[0] + 1e-5)
@@ -55,8 +55,8 @@ def test_gc_update_moves_targets_by_tau_and_only_its_level():
     trainer_one_step = Trainer(TrainConfig(**{**cfg.__dict__, "gc_grad_steps": 1}))
     state = trainer_one_step.init()
     state, _ = trainer_one_step.train_epoch(state)  # fills the replay buffers
-    before = state.gc
-    (gcs, gss), losses = trainer_one_step.gc_update(1)((state.gc, state.gs), state.replay, state.gs_replay,
+    before = state.policies
+    (gcs, gss), losses = trainer_one_step.gc_update(1)((state.policies, state.goal_spaces), state.replay, state.goal_space_replay,
                                                          jax.random.key(0))
     assert np.all(np.isfinite(np.asarray(losses)))
     for new, old, target in zip(jax.tree.leaves(gcs[1].critic), jax.tree.leaves(before[1].target_critic),
@@ -74,9 +74,9 @@ def test_gc_critic_target_masks_bootstrap_where_reached():
     trainer = tiny_trainer()
     state = trainer.init()
     obs = jnp.zeros((2, make_env("point_mass").obs_size))
-    batch = GCRow(obs=obs, goal=jnp.ones((2, 2)), action=jnp.zeros((2, 2)), next_obs=obs,
+    batch = GoalTransition(obs=obs, goal=jnp.ones((2, 2)), action=jnp.zeros((2, 2)), next_obs=obs,
                   reached=jnp.array([True, False]))
-    learner = state.gc[0]
+    learner = state.policies[0]
     critic_loss, _ = trainer.gc_losses(0, learner, None, batch)
     q = trainer.q_value(learner.critic, obs, batch.goal, batch.action)
     reward = gce.goal_conditioned_reward(batch.goal, jnp.zeros((2, 2)), TINY.sigma_gc[0])
@@ -91,10 +91,10 @@ def test_twin_critics_bootstrap_from_the_smaller_target_critic():
     # Stand-in networks: a "critic" is its table of Q values per (critic, row); the policy is zero.
     env = make_env("point_mass")
     obs = jnp.zeros((2, env.obs_size))
-    batch = GCRow(obs=obs, goal=jnp.ones((2, 2)), action=jnp.zeros((2, 2)), next_obs=obs,
+    batch = GoalTransition(obs=obs, goal=jnp.ones((2, 2)), action=jnp.zeros((2, 2)), next_obs=obs,
                   reached=jnp.array([False, True]))
     target_q = jnp.array([[-3.0, -1.0], [-5.0, -2.0]])  # two target critics, two rows
-    learner = GCLearner(actor=None, critic=None, target_actor=None, target_critic=target_q,
+    learner = DDPGLearner(actor=None, critic=None, target_actor=None, target_critic=target_q,
                         actor_opt=None, critic_opt=None)
     critic_loss, actor_loss = ddpg_losses(lambda actor, o, g: jnp.zeros((2, 2)), lambda params, o, g, a: params,
                                           learner, batch, env, 0.4, 0.9)
@@ -108,11 +108,11 @@ def test_twin_critics_bootstrap_from_the_smaller_target_critic():
 def test_two_critics_are_initialised_apart_and_evaluated_together():
     trainer = Trainer(dataclasses.replace(TINY, critics=2))
     state = trainer.init()
-    leaves = jax.tree.leaves(state.gc[0].critic)
+    leaves = jax.tree.leaves(state.policies[0].critic)
     assert all(leaf.shape[0] == 2 for leaf in leaves)
     assert any(not np.allclose(leaf[0], leaf[1]) for leaf in leaves)  # two different initialisations
     obs = jnp.zeros((3, trainer.env.obs_size))
-    assert trainer.q_value(state.gc[0].critic, obs, jnp.ones((3, 2)), jnp.zeros((3, 2))).shape == (2, 3)
+    assert trainer.q_value(state.policies[0].critic, obs, jnp.ones((3, 2)), jnp.zeros((3, 2))).shape == (2, 3)
 
 
 def test_relabelled_goals_take_other_rows_offsets_and_recompute_reached():
@@ -121,7 +121,7 @@ def test_relabelled_goals_take_other_rows_offsets_and_recompute_reached():
     obs = jnp.zeros((4, env.obs_size)).at[:, :2].set(positions)
     next_obs = obs.at[:, 0].add(1.0)  # every row moved 1 along x
     offsets = jnp.array([[1.0, 0.0], [0.0, 3.0], [-2.0, 0.0], [0.0, -1.0]])
-    batch = GCRow(obs=obs, goal=positions + offsets, action=jnp.zeros((4, 2)), next_obs=next_obs,
+    batch = GoalTransition(obs=obs, goal=positions + offsets, action=jnp.zeros((4, 2)), next_obs=next_obs,
                   reached=jnp.array([True, False, False, False]))
     unchanged = relabel_goals(batch, jax.random.key(0), 0.0, env, 0.3)
     assert all(np.array_equal(a, b) for a, b in zip(jax.tree.leaves(unchanged), jax.tree.leaves(batch)))
@@ -135,17 +135,17 @@ def test_relabelled_goals_take_other_rows_offsets_and_recompute_reached():
 def test_two_epochs_fill_buffers_learn_and_do_not_recompile():
     trainer, initial, state, first, second = tiny_after_two_epochs()
     assert int(state.epoch) == 2
-    assert all(np.isfinite(np.asarray(x)).all() for x in jax.tree.leaves((state.gc, state.gs)))
+    assert all(np.isfinite(np.asarray(x)).all() for x in jax.tree.leaves((state.policies, state.goal_spaces)))
     # Every level collected and stored its own transitions and goal-space samples.
     for level in range(TINY.k):
         assert int(state.replay[level].size) > 0
-        assert int(state.gs_replay[level].size) > 0
+        assert int(state.goal_space_replay[level].size) > 0
         assert int(state.starts[level].size) > 1, "the greedy chain added start states"
     # Level-1 transitions act in level 0's goal space: subgoals stay inside its bound.
     rows = np.asarray(state.replay[1].data.action[: int(state.replay[1].size)])
     assert np.all(np.abs(rows) <= 2 * TINY.max_half_width[0] + 1e-4)
     # The goal-space actor was trained.
-    assert not np.allclose(jax.tree.leaves(initial)[0], jax.tree.leaves(state.gs[0].actor)[0])
+    assert not np.allclose(jax.tree.leaves(initial)[0], jax.tree.leaves(state.goal_spaces[0].actor)[0])
     # Every GC/GS/eval item ran until each environment finished an episode.
     s = jax.tree.map(np.asarray, second)
     assert np.all(s.episodes[s.mode != MODE_STARTS] >= TINY.num_envs)
@@ -200,7 +200,7 @@ def test_box_where_used_reads_level_zero_box_at_level_one_states():
     rows = replay.data.replace(obs=jnp.broadcast_to(obs, replay.data.obs.shape))
     filled = replay.replace(data=rows, size=jnp.asarray(7, jnp.int32))
     state = state.replace(replay=(state.replay[0], filled))
-    shift, half_width = trainer.learned_box(0)(state.gs[0].actor, obs)
+    shift, half_width = trainer.learned_box(0)(state.goal_spaces[0].actor, obs)
     used = trainer.boxes_where_used(state, rows=16)[0]
     assert used["max_abs_shift"] == pytest.approx(float(jnp.abs(shift).max()), rel=1e-5)
     assert used["mean_half_width"] == pytest.approx(float(half_width.mean()), rel=1e-5)

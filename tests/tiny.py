@@ -35,7 +35,7 @@ def tiny_trainer() -> Trainer:
 def tiny_after_two_epochs():
     trainer = tiny_trainer()
     state = trainer.init()
-    initial = jax.tree.map(np.asarray, state.gs[0].actor)
+    initial = jax.tree.map(np.asarray, state.goal_spaces[0].actor)
     state, first = trainer.train_epoch(state)
     compiled = traces(TRAIN_EPOCH_TRACE)
     state, second = trainer.train_epoch(state)

@@ -20,7 +20,7 @@ from mjx_emp.rollout.hierarchy import Params, Transition
 
 
 @struct.dataclass
-class GCLearner:
+class DDPGLearner:
     """A level's goal-conditioned actor-critic with target networks and Adam states."""
 
     actor: Params
@@ -32,7 +32,7 @@ class GCLearner:
 
 
 @struct.dataclass
-class GCRow:
+class GoalTransition:
     """One stored goal-conditioned transition; reward and discount are derived on sampling."""
 
     obs: jax.Array
@@ -52,7 +52,7 @@ def reward_cap(goal_size: int, sigma: float, gamma: float) -> float:
     return max(peak, peak / (1.0 - gamma))
 
 
-def ddpg_losses(policy, q_value, learner: GCLearner, batch: GCRow, env: Env, sigma: float, gamma: float):
+def ddpg_losses(policy, q_value, learner: DDPGLearner, batch: GoalTransition, env: Env, sigma: float, gamma: float):
     """(critic loss, actor loss) functions of one goal-conditioned DDPG minibatch.
 
     ``policy(actor, obs, goal)`` is the deterministic policy over a batch and
@@ -82,12 +82,12 @@ def ddpg_losses(policy, q_value, learner: GCLearner, batch: GCRow, env: Env, sig
     return critic_loss, actor_loss
 
 
-def gc_learner_step(learner: GCLearner, losses, actor_tx, critic_tx, tau: float) -> tuple[GCLearner, jax.Array]:
+def ddpg_step(learner: DDPGLearner, losses, actor_tx, critic_tx, tau: float) -> tuple[DDPGLearner, jax.Array]:
     """One DDPG step of a goal-conditioned learner (critic, actor, Polyak targets); returns its losses."""
     actor, critic, actor_opt, critic_opt, values = actor_critic_step(
         *losses, learner.actor, learner.critic, learner.actor_opt, learner.critic_opt, actor_tx, critic_tx,
     )
-    learner = GCLearner(
+    learner = DDPGLearner(
         actor=actor, critic=critic,
         target_actor=optax.incremental_update(actor, learner.target_actor, tau),
         target_critic=optax.incremental_update(critic, learner.target_critic, tau),
@@ -96,7 +96,7 @@ def gc_learner_step(learner: GCLearner, losses, actor_tx, critic_tx, tau: float)
     return learner, values
 
 
-def relabel_goals(batch: GCRow, key: jax.Array, fraction: float, env: Env, eps: float) -> GCRow:
+def relabel_goals(batch: GoalTransition, key: jax.Array, fraction: float, env: Env, eps: float) -> GoalTransition:
     """``batch`` with a ``fraction`` of its rows given another row's goal offset.
 
     Row i keeps its (s, a, s') and gets the goal h(s_i) + (goal_j - h(s_j)) for a random j,
@@ -114,6 +114,6 @@ def relabel_goals(batch: GCRow, key: jax.Array, fraction: float, env: Env, eps: 
     return batch.replace(goal=goal, reached=jnp.where(swap, reached, batch.reached))
 
 
-def gc_row(t: Transition) -> GCRow:
+def goal_transitions(t: Transition) -> GoalTransition:
     """The stored form of a level's transitions (reward and discount are derived on sampling)."""
-    return GCRow(obs=t.obs, goal=t.goal, action=t.action, next_obs=t.next_obs, reached=t.reached)
+    return GoalTransition(obs=t.obs, goal=t.goal, action=t.action, next_obs=t.next_obs, reached=t.reached)

@@ -14,7 +14,7 @@ from mjx_emp.rollout.hierarchy import Params
 
 
 @struct.dataclass
-class GSLearner:
+class GoalSpaceLearner:
     """A level's goal-space actor mu(s0) and critic R(s0, noise, a) with Adam states."""
 
     actor: Params
@@ -24,7 +24,7 @@ class GSLearner:
 
 
 @struct.dataclass
-class GSRow:
+class GoalSpaceSample:
     """One stored goal-space sample (s0, noise, a, r)."""
 
     obs: jax.Array
@@ -33,7 +33,7 @@ class GSRow:
     reward: jax.Array
 
 
-def svg_losses(value: Callable, action: Callable, batch: GSRow, noise: jax.Array):
+def svg_losses(value: Callable, action: Callable, batch: GoalSpaceSample, noise: jax.Array):
     """(critic loss, actor loss) functions of one goal-space minibatch (SVG through R).
 
     ``value(critic, obs, noise, action)`` is the critic R and ``action(actor, obs)`` the

@@ -64,7 +64,7 @@ class CollectTotals:
 Absorb = Callable[[Any, tuple[Transition, ...], EpisodeEnd, RolloutStats], Any]
 
 
-def collect(h: Hierarchy, params: tuple, start: StartFn, start_params: Any, first: RolloutState,
+def collect(hierarchy: Hierarchy, params: tuple, start: StartFn, start_params: Any, first: RolloutState,
             chunk_steps: int, max_chunks: jax.Array, absorb: Absorb, carry: Any,
             fixed_length: jax.Array | bool = False) -> tuple[RolloutState, Any]:
     """Roll ``first`` forward chunk by chunk, handing each chunk to ``absorb``.
@@ -80,7 +80,7 @@ def collect(h: Hierarchy, params: tuple, start: StartFn, start_params: Any, firs
 
     def chunk(loop):
         state, kept, chunks = loop
-        state, transitions, episodes, stats = rollout(h, params, start, start_params, state, chunk_steps)
+        state, transitions, episodes, stats = rollout(hierarchy, params, start, start_params, state, chunk_steps)
         return state, absorb(kept, transitions, episodes, stats), chunks + 1
 
     state, kept, _ = jax.lax.while_loop(unfinished, chunk, (first, carry, jnp.zeros((), jnp.int32)))

@@ -236,7 +236,7 @@ def decide(
 
 
 def _issue_subgoals(
-    h: Hierarchy,
+    hierarchy: Hierarchy,
     params: tuple[Params, ...],
     root: jax.Array,
     env_state: EnvState,
@@ -251,14 +251,14 @@ def _issue_subgoals(
     Updates the per-level lists ``goals``, ``issued_obs`` and ``issued_action`` in place
     (they are the scan step's local working copies) and returns decisions per level.
     """
-    env = h.env
+    env = hierarchy.env
     obs = jax.vmap(env.observe)(env_state)
     pos = jax.vmap(env.goal_of)(env_state)
-    decisions = [jnp.zeros((), jnp.int32) for _ in range(h.k)]
-    for i in range(h.k - 1, 0, -1):
+    decisions = [jnp.zeros((), jnp.int32) for _ in range(hierarchy.k)]
+    for i in range(hierarchy.k - 1, 0, -1):
         need = finished[i - 1] & (i <= root)
         z, decisions[i] = decide(
-            h.policies[i], params[i], obs, goals[i], keys[i], need, issued_action[i]
+            hierarchy.policies[i], params[i], obs, goals[i], keys[i], need, issued_action[i]
         )
         issued_action[i] = z
         issued_obs[i] = jnp.where(need[:, None], obs, issued_obs[i])
@@ -267,7 +267,7 @@ def _issue_subgoals(
 
 
 def init_rollout(
-    h: Hierarchy,
+    hierarchy: Hierarchy,
     params: tuple[Params, ...],
     start: StartFn,
     start_params: Any,
@@ -279,30 +279,30 @@ def init_rollout(
 
     ``root`` may be a traced integer: the rollout's compiled program does not depend on it.
     """
-    root = h.k - 1 if root is None else root
-    _check_root(h, root)
+    root = hierarchy.k - 1 if root is None else root
+    _check_root(hierarchy, root)
     root = jnp.asarray(root, jnp.int32)
-    env = h.env
+    env = hierarchy.env
     key, start_key, level_key = jax.random.split(key, 3)
     env_state, root_goal, info = jax.vmap(start, in_axes=(None, 0))(
         start_params, jax.random.split(start_key, batch_size)
     )
     obs = jax.vmap(env.observe)(env_state)
     zeros_goal = jnp.zeros((batch_size, env.goal_size), obs.dtype)
-    goals = [jnp.where(root == i, root_goal, zeros_goal) for i in range(h.k)]
-    issued_obs = [obs for _ in range(h.k)]
+    goals = [jnp.where(root == i, root_goal, zeros_goal) for i in range(hierarchy.k)]
+    issued_obs = [obs for _ in range(hierarchy.k)]
     issued_action = [jnp.zeros((batch_size, env.action_size), obs.dtype)] + [
-        zeros_goal for _ in range(h.k - 1)
+        zeros_goal for _ in range(hierarchy.k - 1)
     ]
-    everyone = [jnp.ones(batch_size, bool) for _ in range(h.k)]
+    everyone = [jnp.ones(batch_size, bool) for _ in range(hierarchy.k)]
     _issue_subgoals(
-        h, params, root, env_state, goals, issued_obs, issued_action, everyone,
-        _level_keys(level_key, batch_size, h.k),
+        hierarchy, params, root, env_state, goals, issued_obs, issued_action, everyone,
+        _level_keys(level_key, batch_size, hierarchy.k),
     )
     return RolloutState(
         env=env_state,
         goals=tuple(goals),
-        counts=tuple(jnp.zeros(batch_size, jnp.int32) for _ in range(h.k)),
+        counts=tuple(jnp.zeros(batch_size, jnp.int32) for _ in range(hierarchy.k)),
         issued_obs=tuple(issued_obs),
         issued_action=tuple(issued_action),
         root=root,
@@ -312,27 +312,27 @@ def init_rollout(
     )
 
 
-def _check_root(h: Hierarchy, root: int | jax.Array) -> None:
+def _check_root(hierarchy: Hierarchy, root: int | jax.Array) -> None:
     """Reject a concrete root outside 0..k-1 (a traced root is the caller's promise)."""
     if isinstance(root, jax.core.Tracer):
         return
-    if not 0 <= int(root) < h.k:
-        raise ConfigError(f"root must be a level in 0..{h.k - 1}; got {root}")
+    if not 0 <= int(root) < hierarchy.k:
+        raise ConfigError(f"root must be a level in 0..{hierarchy.k - 1}; got {root}")
 
 
-def _scan_step(h, params, start, start_params, state: RolloutState, _):
+def _scan_step(hierarchy, params, start, start_params, state: RolloutState, _):
     """One primitive step of every environment: act, simulate, hand back, restart, re-issue."""
-    env = h.env
+    env = hierarchy.env
     root = state.root
     batch = state.counts[0].shape[0]
     key, policy_key, start_key = jax.random.split(state.key, 3)
-    keys = _level_keys(policy_key, batch, h.k)
+    keys = _level_keys(policy_key, batch, hierarchy.k)
     goals, counts = list(state.goals), list(state.counts)
     issued_obs, issued_action = list(state.issued_obs), list(state.issued_action)
 
     # 1. Level 0 acts; physics advances one primitive action.
     obs = jax.vmap(env.observe)(state.env)
-    action = jax.vmap(h.policies[0], in_axes=(None, 0, 0, 0))(params[0], obs, goals[0], keys[0])
+    action = jax.vmap(hierarchy.policies[0], in_axes=(None, 0, 0, 0))(params[0], obs, goals[0], keys[0])
     issued_obs[0], issued_action[0] = obs, action
     env_state = jax.vmap(env.step)(state.env, action)
     broke = env_state.resets > state.env.resets
@@ -342,11 +342,11 @@ def _scan_step(h, params, start, start_params, state: RolloutState, _):
     # 2. Bottom-up: levels whose action completed count it and check their goal.
     transitions, finished, reached_by_level = [], [], []
     completed = jnp.ones(batch, bool)
-    for i in range(h.k):
+    for i in range(hierarchy.k):
         completed = completed & (i <= root)
         count = counts[i] + completed.astype(jnp.int32)
-        reached = completed & (jnp.linalg.norm(pos - goals[i], axis=-1) < h.eps[i])
-        done = completed & (reached | (count >= h.n[i]) | broke)
+        reached = completed & (jnp.linalg.norm(pos - goals[i], axis=-1) < hierarchy.eps[i])
+        done = completed & (reached | (count >= hierarchy.n[i]) | broke)
         transitions.append(
             Transition(
                 obs=issued_obs[i], goal=goals[i], action=issued_action[i], next_obs=next_obs,
@@ -391,7 +391,7 @@ def _scan_step(h, params, start, start_params, state: RolloutState, _):
 
     # 4. Top-down: parents of finished levels issue the next subgoals.
     decisions = _issue_subgoals(
-        h, params, root, env_state, goals, issued_obs, issued_action, finished, keys
+        hierarchy, params, root, env_state, goals, issued_obs, issued_action, finished, keys
     )
     new_state = RolloutState(
         env=env_state, goals=tuple(goals), counts=tuple(counts),
@@ -404,7 +404,7 @@ def _scan_step(h, params, start, start_params, state: RolloutState, _):
 
 
 def rollout(
-    h: Hierarchy,
+    hierarchy: Hierarchy,
     params: tuple[Params, ...],
     start: StartFn,
     start_params: Any,
@@ -414,7 +414,7 @@ def rollout(
     """Advance every environment ``num_steps`` primitive actions.
 
     Returns the new state, per-level transitions (all k levels; those above the root are
-    never valid), the root episodes that ended, and totals. Jit with ``h``, ``start`` and
+    never valid), the root episodes that ended, and totals. Jit with ``hierarchy``, ``start`` and
     ``num_steps`` static (see :func:`jit_rollout`); everything else, the root included,
     may change between calls without recompiling. Static arguments hash by identity, so
     keep one ``Hierarchy`` and one ``start`` function object per agent: a freshly built
@@ -424,7 +424,7 @@ def rollout(
     nan_before, flips_before = state.env.nan_resets.sum(), state.env.flip_resets.sum()
 
     def body(carry, x):
-        return _scan_step(h, params, start, start_params, carry, x)
+        return _scan_step(hierarchy, params, start, start_params, carry, x)
 
     state, (transitions, episodes, finished, decisions) = jax.lax.scan(
         body, state, None, length=num_steps
@@ -442,12 +442,12 @@ def rollout(
     return state, transitions, episodes, stats
 
 
-_jit_init_rollout = jax.jit(init_rollout, static_argnames=("h", "start", "batch_size"))
+_jit_init_rollout = jax.jit(init_rollout, static_argnames=("hierarchy", "start", "batch_size"))
 
 
-def jit_init_rollout(h, params, start, start_params, key, batch_size, root=None) -> RolloutState:
+def jit_init_rollout(hierarchy, params, start, start_params, key, batch_size, root=None) -> RolloutState:
     """Jitted :func:`init_rollout`; a concrete ``root`` is checked before tracing."""
     if root is not None:
-        _check_root(h, root)
-    return _jit_init_rollout(h, params, start, start_params, key, batch_size, root)
-jit_rollout = jax.jit(rollout, static_argnames=("h", "start", "num_steps"))
+        _check_root(hierarchy, root)
+    return _jit_init_rollout(hierarchy, params, start, start_params, key, batch_size, root)
+jit_rollout = jax.jit(rollout, static_argnames=("hierarchy", "start", "num_steps"))

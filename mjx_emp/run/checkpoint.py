@@ -138,7 +138,29 @@ def upgrade_float_step_counters(arrays: dict[str, np.ndarray], expected: list[di
     return upgraded
 
 
-UPGRADES = (upgrade_float_step_counters,)
+RENAMED_FIELDS = (
+    (".gc[", ".policies["), (".gs[", ".goal_spaces["), (".gs_replay[", ".goal_space_replay["),
+    (".skills[", ".skill_actors["), (".boxes[", ".goal_space_actors["),
+)
+"""(old, new) leading path parts of state fields renamed when the package was restructured:
+phase 1's goal-conditioned and goal-space learners and goal-space replay, phase 2's frozen
+actors."""
+
+
+def upgrade_renamed_fields(arrays: dict[str, np.ndarray], expected: list[dict]) -> dict[str, np.ndarray]:
+    """Arrays saved under a field's old name move to its new one (:data:`RENAMED_FIELDS`)."""
+    wanted = {entry["path"] for entry in expected}
+    upgraded = {}
+    for path, value in arrays.items():
+        for old, new in RENAMED_FIELDS:
+            if path.startswith(old) and path not in wanted and new + path[len(old):] in wanted:
+                path = new + path[len(old):]
+                break
+        upgraded[path] = value
+    return upgraded
+
+
+UPGRADES = (upgrade_renamed_fields, upgrade_float_step_counters)
 """Conversions of arrays saved by earlier versions, applied in order when a checkpoint's
 layout is not today's. Each maps {path: array} to {path: array} given today's layout."""
 

@@ -193,7 +193,7 @@ def _train_new(trainer, state, run_dir: Path, keep_checkpoints: int, config_type
     return _train_to_the_end(trainer, state, checkpoints, run_dir)
 
 
-def start(exp: TrainExperiment):
+def train(exp: TrainExperiment):
     """Train a new run of the config's algorithm; returns the final state."""
     algorithm = algorithm_of(exp.config)
     algorithm.check(exp.config)
@@ -254,7 +254,7 @@ def resume(exp: ResumeExperiment):
     return _resume(exp, load_run)
 
 
-def start_phase2(exp: Phase2Experiment):
+def train_phase2(exp: Phase2Experiment):
     """Train phase 2 on a phase-1 run's skills in a new phase-2 directory; returns the final state."""
     check_phase2_config(exp.config)
     _check_keep(exp.keep_checkpoints)
@@ -284,7 +284,7 @@ def load_phase2(phase2_dir: Path, fallback: bool = False, epochs: int | None = N
     phase2_dir = Path(phase2_dir)
     cfg = _with_epochs(read_run_config(phase2_dir, field, Phase2Config), epochs)
     trainer = Phase2Trainer(make_agent(read_run_config(phase2_dir, field, file=SKILLS_FILE)), cfg)
-    template = jax.eval_shape(trainer.init, jax.eval_shape(trainer.skills.init))
+    template = jax.eval_shape(trainer.init, jax.eval_shape(trainer.phase1.init))
     epoch, state = _restore(phase2_dir, trainer, template, fallback)
     return trainer, epoch, state
 

@@ -55,11 +55,11 @@ def record_rollout(plan: RolloutPlan, key, steps: int) -> Recording:
 
     from mjx_emp.rollout.hierarchy import jit_init_rollout, jit_rollout
 
-    h, params, start, start_params = plan.hierarchy, plan.params, plan.start, plan.start_params
-    rollout_state = jit_init_rollout(h, params, start, start_params, key, 1, plan.root)
+    hierarchy, params, start, start_params = plan.hierarchy, plan.params, plan.start, plan.start_params
+    rollout_state = jit_init_rollout(hierarchy, params, start, start_params, key, 1, plan.root)
     qpos, mocap, goals = [], [], []
     for _ in range(steps):
-        rollout_state = jit_rollout(h, params, start, start_params, rollout_state, 1)[0]
+        rollout_state = jit_rollout(hierarchy, params, start, start_params, rollout_state, 1)[0]
         data = jax.device_get(rollout_state.env.data)
         qpos.append(np.asarray(data.qpos[0]))
         mocap.append(np.asarray(data.mocap_pos[0]))

@@ -31,8 +31,8 @@ from mjx_emp.algos.he.config import TrainConfig, check_train_config
 from mjx_emp.counters import StepCounter
 from mjx_emp.envs.env import Env, make_env
 from mjx_emp.learners.common import actor_critic_step, all_finite
-from mjx_emp.learners.ddpg import GCLearner, GCRow, ddpg_losses, gc_learner_step, gc_row, relabel_goals
-from mjx_emp.learners.goal_space import GSLearner, GSRow, svg_losses
+from mjx_emp.learners.ddpg import DDPGLearner, GoalTransition, ddpg_losses, ddpg_step, goal_transitions, relabel_goals
+from mjx_emp.learners.goal_space import GoalSpaceLearner, GoalSpaceSample, svg_losses
 from mjx_emp.metrics import epoch_header
 from mjx_emp.nets import (
     MLP,
@@ -81,10 +81,10 @@ class StartParams:
 class TrainState:
     """Everything phase 1 learns or remembers; a pytree of arrays, so it checkpoints whole."""
 
-    gc: tuple[GCLearner, ...]
-    gs: tuple[GSLearner, ...]
+    policies: tuple[DDPGLearner, ...]
+    goal_spaces: tuple[GoalSpaceLearner, ...]
     replay: tuple[ReplayBuffer, ...]
-    gs_replay: tuple[ReplayBuffer, ...]
+    goal_space_replay: tuple[ReplayBuffer, ...]
     starts: tuple[ReplayBuffer, ...]
     chain: RolloutState
     key: jax.Array
@@ -214,7 +214,7 @@ class Trainer:
     def _init(self, key: jax.Array) -> TrainState:
         env, cfg, opt = self.env, self.cfg, self.optimizers
         obs, goal = jnp.asarray(self.initial_obs), jnp.zeros(env.goal_size)
-        gcs, gss, replay, gs_replay, starts = [], [], [], [], []
+        policies, goal_spaces, replay, goal_space_replay, starts = [], [], [], [], []
         for level in range(cfg.k):
             keys = jax.random.split(jax.random.fold_in(key, level), 4)
             action = jnp.zeros(self.action_size(level))
@@ -225,18 +225,18 @@ class Trainer:
             else:
                 critic_keys = jax.random.split(keys[1], cfg.critics)
                 critic = jax.vmap(lambda k: self.critic_net.init(k, critic_input))(critic_keys)
-            gcs.append(GCLearner(actor, critic, actor, critic, opt["actor"].init(actor), opt["critic"].init(critic)))
+            policies.append(DDPGLearner(actor, critic, actor, critic, opt["actor"].init(actor), opt["critic"].init(critic)))
             gs_action = jnp.zeros(2 * env.goal_size)
             gs_actor = self.gs_actor_net(level).init(keys[2], env.features(obs))
             gs_critic = self.critic_net.init(keys[3], jnp.concatenate([env.features(obs), goal, gs_action]))
-            gss.append(GSLearner(gs_actor, gs_critic, opt["gs_actor"].init(gs_actor), opt["gs_critic"].init(gs_critic)))
-            replay.append(replay_init(GCRow(obs, goal, action, obs, jnp.zeros((), bool)), cfg.replay_capacity))
-            gs_replay.append(replay_init(GSRow(obs, goal, gs_action, jnp.zeros(())), cfg.gs_replay_capacity))
+            goal_spaces.append(GoalSpaceLearner(gs_actor, gs_critic, opt["gs_actor"].init(gs_actor), opt["gs_critic"].init(gs_critic)))
+            replay.append(replay_init(GoalTransition(obs, goal, action, obs, jnp.zeros((), bool)), cfg.replay_capacity))
+            goal_space_replay.append(replay_init(GoalSpaceSample(obs, goal, gs_action, jnp.zeros(())), cfg.gs_replay_capacity))
             start_buffer = replay_init(obs, cfg.start_capacity)
             starts.append(replay_insert(start_buffer, obs[None], jnp.ones(1, bool)))
         key, chain_key = jax.random.split(jax.random.fold_in(key, cfg.k))
         state = TrainState(
-            gc=tuple(gcs), gs=tuple(gss), replay=tuple(replay), gs_replay=tuple(gs_replay),
+            policies=tuple(policies), goal_spaces=tuple(goal_spaces), replay=tuple(replay), goal_space_replay=tuple(goal_space_replay),
             starts=tuple(starts), chain=None, key=key,
             epoch=jnp.zeros((), jnp.int32), env_steps=StepCounter.zero(),
         )
@@ -250,16 +250,16 @@ class Trainer:
         cfg = self.cfg
         params = tuple(
             LevelParams(
-                actor=state.gc[level].actor,
-                box=None if level == 0 else state.gs[level - 1].actor,
+                actor=state.policies[level].actor,
+                box=None if level == 0 else state.goal_spaces[level - 1].actor,
                 noise=jnp.where((root == level) & (mode == MODE_GC), cfg.action_noise, 0.0),
             )
             for level in range(cfg.k)
-        ) + (state.gs[cfg.k - 1].actor,)
+        ) + (state.goal_spaces[cfg.k - 1].actor,)
         goal_noise = jnp.select([mode == MODE_GC, mode == MODE_GS], [cfg.goal_noise, cfg.gs_noise], 0.0)
         start_params = StartParams(
             root=root, goal_noise=goal_noise, starts=state.starts,
-            gs_actors=tuple(g.actor for g in state.gs),
+            gs_actors=tuple(g.actor for g in state.goal_spaces),
         )
         return params, start_params
 
@@ -271,24 +271,24 @@ class Trainer:
         params, start_params = self.rollout_inputs(state, jnp.int32(k), jnp.int32(MODE_STARTS))
         return RolloutPlan(self.hierarchy, params, self.start, start_params, root=k, shown_levels=k)
 
-    def start(self, sp: StartParams, key: jax.Array):
-        """A new episode at level ``sp.root``: s0 from its start buffer, z from its noisy box.
+    def start(self, start_params: StartParams, key: jax.Array):
+        """A new episode at level ``start_params.root``: s0 from its start buffer, z from its noisy box.
 
         Root k is the start-state chain: it begins at the initial state and its goal is
         never reached.
         """
         env, k, d = self.env, self.cfg.k, self.env.goal_size
         pick_key, box_key, noise_key, env_key = jax.random.split(key, 4)
-        candidates = [replay_sample(buf, pick_key, 1)[0] for buf in sp.starts]
-        s0 = jnp.stack(candidates + [jnp.asarray(self.initial_obs)])[sp.root]
+        candidates = [replay_sample(buf, pick_key, 1)[0] for buf in start_params.starts]
+        s0 = jnp.stack(candidates + [jnp.asarray(self.initial_obs)])[start_params.root]
         state = env.restore(env_key, s0)
-        actions = [self.goal_space_action(level, p, s0) for level, p in enumerate(sp.gs_actors)]
-        action = jnp.stack(actions + [jnp.zeros(2 * d)])[sp.root]
+        actions = [self.goal_space_action(level, p, s0) for level, p in enumerate(start_params.gs_actors)]
+        action = jnp.stack(actions + [jnp.zeros(2 * d)])[start_params.root]
         shift, log_half_width = gce.split_goal_space_action(action)
-        jitter = sp.goal_noise * jax.random.normal(box_key, (2 * d,))
+        jitter = start_params.goal_noise * jax.random.normal(box_key, (2 * d,))
         action = jnp.concatenate([shift + jitter[:d] * jnp.exp(log_half_width), log_half_width + jitter[d:]])
         noise = gce.goal_noise(noise_key, (d,))
-        z = jnp.where(sp.root == k, _UNREACHABLE, gce.sample_goal(noise, action))
+        z = jnp.where(start_params.root == k, _UNREACHABLE, gce.sample_goal(noise, action))
         return state, env.goal_of_obs(s0) + z, EpisodeInfo(obs=s0, noise=noise, action=action)
 
     def _max_chunks(self) -> jax.Array:
@@ -309,25 +309,25 @@ class Trainer:
         level got a new goal in is a start state. Returns the new state and the call's
         :class:`CollectTotals`.
         """
-        cfg, env, h = self.cfg, self.env, self.hierarchy
+        cfg, env, hierarchy = self.cfg, self.env, self.hierarchy
         params, start_params = self.rollout_inputs(state, root, mode)
         is_chain = mode == MODE_STARTS
         first = jax.lax.cond(
             is_chain,
             lambda: state.chain,
-            lambda: init_rollout(h, params, self.start, start_params, key, cfg.num_envs, root),
+            lambda: init_rollout(hierarchy, params, self.start, start_params, key, cfg.num_envs, root),
         )
         def absorb(kept, transitions, episodes, stats):
-            (replay, gs_replay, starts), totals = kept
+            (replay, goal_space_replay, starts), totals = kept
             transitions = flatten_rows(transitions)
             episodes = flatten_rows(episodes)
             replay = tuple(
-                replay_insert(replay[i], gc_row(transitions[i]), transitions[i].valid & (root == i) & (mode == MODE_GC))
+                replay_insert(replay[i], goal_transitions(transitions[i]), transitions[i].valid & (root == i) & (mode == MODE_GC))
                 for i in range(cfg.k)
             )
             first_episode = episodes.ended & (episodes.index == 0)
-            gs_replay = tuple(
-                replay_insert(gs_replay[i], self._gs_row(i, episodes), episodes.valid & (root == i) & (mode == MODE_GS))
+            goal_space_replay = tuple(
+                replay_insert(goal_space_replay[i], self._goal_space_sample(i, episodes), episodes.valid & (root == i) & (mode == MODE_GS))
                 for i in range(cfg.k)
             )
             starts = tuple(
@@ -342,24 +342,24 @@ class Trainer:
             )
             root_valid = jnp.stack([t.valid for t in transitions])[root]
             totals = totals.add(stats, root_valid, first_episode, episodes.reached, distance)
-            return (replay, gs_replay, starts), totals
+            return (replay, goal_space_replay, starts), totals
 
-        replay, gs_replay = state.replay, state.gs_replay
+        replay, goal_space_replay = state.replay, state.goal_space_replay
         if cfg.fresh_replay:
             replay = tuple(replay_clear_where(b, (root == i) & (mode == MODE_GC)) for i, b in enumerate(replay))
-            gs_replay = tuple(replay_clear_where(b, (root == i) & (mode == MODE_GS)) for i, b in enumerate(gs_replay))
-        rs, ((replay, gs_replay, starts), totals) = collect(
-            h, params, self.start, start_params, first, cfg.chunk_steps, self._max_chunks()[root], absorb,
-            ((replay, gs_replay, state.starts), CollectTotals.zero()), fixed_length=is_chain,
+            goal_space_replay = tuple(replay_clear_where(b, (root == i) & (mode == MODE_GS)) for i, b in enumerate(goal_space_replay))
+        rollout_state, ((replay, goal_space_replay, starts), totals) = collect(
+            hierarchy, params, self.start, start_params, first, cfg.chunk_steps, self._max_chunks()[root], absorb,
+            ((replay, goal_space_replay, state.starts), CollectTotals.zero()), fixed_length=is_chain,
         )
-        chain = jax.lax.cond(is_chain, lambda: rs, lambda: state.chain)
+        chain = jax.lax.cond(is_chain, lambda: rollout_state, lambda: state.chain)
         state = state.replace(
-            replay=replay, gs_replay=gs_replay, starts=starts, chain=chain,
+            replay=replay, goal_space_replay=goal_space_replay, starts=starts, chain=chain,
             env_steps=state.env_steps.add(totals.env_steps),
         )
         return state, totals
 
-    def _gs_row(self, level: int, episodes: EpisodeEnd) -> GSRow:
+    def _goal_space_sample(self, level: int, episodes: EpisodeEnd) -> GoalSpaceSample:
         """Goal-space samples from finished episodes, rewarded with the level's sigma_gs."""
         info = episodes.info
         z = gce.sample_goal(info.noise, info.action)
@@ -367,10 +367,10 @@ class Trainer:
             self.env.goal_of_obs(info.obs), z, self.env.goal_of_obs(episodes.final_obs),
             info.action, self.cfg.sigma_gs[level],
         )
-        return GSRow(obs=info.obs, noise=info.noise, action=info.action, reward=reward)
+        return GoalSpaceSample(obs=info.obs, noise=info.noise, action=info.action, reward=reward)
 
     # ---- learning -------------------------------------------------------------------
-    def gc_losses(self, level: int, learner: GCLearner, box: Params, batch: GCRow):
+    def gc_losses(self, level: int, learner: DDPGLearner, box: Params, batch: GoalTransition):
         """(critic loss, actor loss) functions of one goal-conditioned minibatch (DDPG)."""
         cfg = self.cfg
         policy = self.hierarchy.policies[level]
@@ -382,55 +382,55 @@ class Trainer:
     def gc_update(self, level: int):
         cfg, opt = self.cfg, self.optimizers
 
-        def update(learners, replay, gs_replay, key):
-            del gs_replay
-            gcs, gss = learners
-            box = None if level == 0 else gss[level - 1].actor
+        def update(learners, replay, goal_space_replay, key):
+            del goal_space_replay
+            policies, goal_spaces = learners
+            box = None if level == 0 else goal_spaces[level - 1].actor
 
-            def step(learner: GCLearner, step_key):
+            def step(learner: DDPGLearner, step_key):
                 sample_key, relabel_key = jax.random.split(step_key)
                 batch = replay_sample(replay[level], sample_key, cfg.batch_size)
                 if cfg.relabel > 0:
                     batch = relabel_goals(batch, relabel_key, cfg.relabel, self.env, cfg.eps[level])
                 losses = self.gc_losses(level, learner, box, batch)
-                return gc_learner_step(learner, losses, opt["actor"], opt["critic"], cfg.tau)
+                return ddpg_step(learner, losses, opt["actor"], opt["critic"], cfg.tau)
 
-            learner, losses = jax.lax.scan(step, gcs[level], jax.random.split(key, cfg.gc_grad_steps))
-            gcs = gcs[:level] + (learner,) + gcs[level + 1 :]
-            return (gcs, gss), losses.mean(axis=0)
+            learner, losses = jax.lax.scan(step, policies[level], jax.random.split(key, cfg.gc_grad_steps))
+            policies = policies[:level] + (learner,) + policies[level + 1 :]
+            return (policies, goal_spaces), losses.mean(axis=0)
 
         return update
 
-    def gs_losses(self, level: int, batch: GSRow, noise: jax.Array):
+    def gs_losses(self, level: int, batch: GoalSpaceSample, noise: jax.Array):
         """(critic loss, actor loss) functions of one goal-space minibatch at ``level`` (SVG)."""
         return svg_losses(self.gs_value, functools.partial(self.goal_space_action, level), batch, noise)
 
     def gs_update(self, level: int):
         cfg, opt = self.cfg, self.optimizers
 
-        def update(learners, replay, gs_replay, key):
+        def update(learners, replay, goal_space_replay, key):
             del replay
-            gcs, gss = learners
+            policies, goal_spaces = learners
 
-            def step(learner: GSLearner, step_key):
+            def step(learner: GoalSpaceLearner, step_key):
                 sample_key, noise_key = jax.random.split(step_key)
-                batch = replay_sample(gs_replay[level], sample_key, cfg.batch_size)
+                batch = replay_sample(goal_space_replay[level], sample_key, cfg.batch_size)
                 noise = gce.goal_noise(noise_key, batch.noise.shape)
                 losses_fns = self.gs_losses(level, batch, noise)
                 actor, critic, actor_opt, critic_opt, losses = actor_critic_step(
                     *losses_fns, learner.actor, learner.critic, learner.actor_opt, learner.critic_opt,
                     opt["gs_actor"], opt["gs_critic"],
                 )
-                return GSLearner(actor, critic, actor_opt, critic_opt), losses
+                return GoalSpaceLearner(actor, critic, actor_opt, critic_opt), losses
 
-            learner, losses = jax.lax.scan(step, gss[level], jax.random.split(key, cfg.gs_grad_steps))
-            gss = gss[:level] + (learner,) + gss[level + 1 :]
-            return (gcs, gss), losses.mean(axis=0)
+            learner, losses = jax.lax.scan(step, goal_spaces[level], jax.random.split(key, cfg.gs_grad_steps))
+            goal_spaces = goal_spaces[:level] + (learner,) + goal_spaces[level + 1 :]
+            return (policies, goal_spaces), losses.mean(axis=0)
 
         return update
 
-    def _no_update(self, learners, replay, gs_replay, key):
-        del replay, gs_replay, key
+    def _no_update(self, learners, replay, goal_space_replay, key):
+        del replay, goal_space_replay, key
         return learners, jnp.full(2, jnp.nan)
 
     # ---- the epoch ------------------------------------------------------------------
@@ -446,15 +446,15 @@ class Trainer:
             key, collect_key, update_key = jax.random.split(state.key, 3)
             state, totals = self._collect(state.replace(key=key), root, mode, collect_key)
             branch = jnp.select([mode == MODE_GC, mode == MODE_GS], [1 + 2 * root, 2 + 2 * root], 0)
-            (gcs, gss), losses = jax.lax.switch(
-                branch, branches, (state.gc, state.gs), state.replay, state.gs_replay, update_key
+            (policies, goal_spaces), losses = jax.lax.switch(
+                branch, branches, (state.policies, state.goal_spaces), state.replay, state.goal_space_replay, update_key
             )
             stats = ItemStats(
                 root=root, mode=mode, env_steps=totals.env_steps, transitions=totals.transitions,
                 episodes=totals.episodes, reached=totals.success(), final_distance=totals.mean_distance(),
                 critic_loss=losses[0], actor_loss=losses[1], flip_resets=totals.flip_resets,
             )
-            return state.replace(gc=gcs, gs=gss), stats
+            return state.replace(policies=policies, goal_spaces=goal_spaces), stats
 
         state, stats = jax.lax.scan(item, state, jnp.asarray(epoch_schedule(cfg)))
         return state.replace(epoch=state.epoch + 1), stats
@@ -499,9 +499,9 @@ class Trainer:
         only_initial = replay_insert(replay_init(initial, 1), initial[None], jnp.ones(1, bool))
         probe = state.replace(starts=state.starts[:top] + (only_initial,))
         params, start_params = self.rollout_inputs(probe, jnp.int32(top), jnp.int32(MODE_EVAL))
-        rs = init_rollout(self.hierarchy, params, self.start, start_params, key, skills, top)
+        rollout_state = init_rollout(self.hierarchy, params, self.start, start_params, key, skills, top)
         steps = int(np.prod(self.cfg.n))
-        _, transitions, _, _ = rollout(self.hierarchy, params, self.start, start_params, rs, steps)
+        _, transitions, _, _ = rollout(self.hierarchy, params, self.start, start_params, rollout_state, steps)
         ended = transitions[top].final
         ended_before = jnp.cumsum(ended, axis=0) - ended.astype(jnp.int32)
         steps_mask = (ended_before == 0) & transitions[0].valid
@@ -517,7 +517,7 @@ class Trainer:
         obs = jnp.asarray(self.initial_obs) if obs is None else obs
         boxes = []
         for level in range(self.cfg.k):
-            action = self.goal_space_action(level, state.gs[level].actor, obs)
+            action = self.goal_space_action(level, state.goal_spaces[level].actor, obs)
             shift, log_half_width = gce.split_goal_space_action(action)
             boxes.append({
                 "shift": np.asarray(shift).tolist(),
@@ -542,7 +542,7 @@ class Trainer:
                 found.append(None)
                 continue
             obs = replay_sample(above, jax.random.fold_in(jax.random.key(0), state.epoch), rows).obs
-            shift, half_width = self.learned_box(level)(state.gs[level].actor, obs)
+            shift, half_width = self.learned_box(level)(state.goal_spaces[level].actor, obs)
             found.append({"max_abs_shift": float(jnp.abs(shift).max()),
                           "mean_half_width": float(half_width.mean()),
                           "max_half_width": float(half_width.max())})
@@ -586,7 +586,7 @@ class Trainer:
                 if not np.isfinite(value):
                     kind = "goal-conditioned" if s.mode[i] == MODE_GC else "goal-space"
                     return f"level {int(s.root[i])} {kind} {name.replace('_', ' ')} is {value}"
-        if not bool(all_finite((state.gc, state.gs))):
+        if not bool(all_finite((state.policies, state.goal_spaces))):
             return "a network parameter or optimizer state is not finite"
         return None
 
