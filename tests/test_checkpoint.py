@@ -167,7 +167,7 @@ def test_nan_stops_the_run_and_keeps_the_last_good_checkpoint(tmp_path):
     good = jax.tree.map(lambda x: x.copy(), state)  # the cached state stays intact for other tests
     poisoned = jax.tree.map(lambda x: x.copy(), good)  # train_epoch donates (deletes) its input
     actor = jax.tree.map(lambda x: jnp.full_like(x, jnp.nan), poisoned.policies[0].actor)
-    poisoned = poisoned.replace(gc=(poisoned.policies[0].replace(actor=actor), *poisoned.policies[1:]))
+    poisoned = poisoned.replace(policies=(poisoned.policies[0].replace(actor=actor), *poisoned.policies[1:]))
     with Checkpoints(tmp_path) as checkpoints:
         checkpoints.save(2, good, TINY)
         with pytest.raises(TrainingDiverged,
