@@ -16,6 +16,13 @@ DIGIT_BITS = 24
 _DIGIT = 1 << DIGIT_BITS
 
 
+def digits(count: int) -> tuple[int, int]:
+    """``(hi, lo)`` with ``count == hi * 2^24 + lo`` and 0 <= lo < 2^24, for 0 <= count < 2^55."""
+    if not 0 <= count < 1 << (31 + DIGIT_BITS):
+        raise ValueError(f"count must be in [0, 2^55); got {count}")
+    return divmod(int(count), _DIGIT)
+
+
 @struct.dataclass
 class StepCounter:
     """A non-negative count ``hi * 2^24 + lo`` with 0 <= lo < 2^24 (both int32 arrays)."""
@@ -30,9 +37,7 @@ class StepCounter:
     @classmethod
     def of(cls, count: int) -> StepCounter:
         """The counter holding ``count`` (a host integer, 0 <= count < 2^55)."""
-        if not 0 <= count < 1 << (31 + DIGIT_BITS):
-            raise ValueError(f"count must be in [0, 2^55); got {count}")
-        hi, lo = divmod(int(count), _DIGIT)
+        hi, lo = digits(count)
         return cls(hi=jnp.asarray(hi, jnp.int32), lo=jnp.asarray(lo, jnp.int32))
 
     def add(self, steps: jax.Array) -> StepCounter:

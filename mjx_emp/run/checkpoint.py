@@ -27,7 +27,7 @@ import orbax.checkpoint as ocp
 
 from mjx_emp.algos.he.config import TrainConfig
 from mjx_emp.checks import config_from_dict
-from mjx_emp.counters import DIGIT_BITS
+from mjx_emp.counters import digits
 from mjx_emp.errors import CheckpointError
 
 CHECKPOINT_SUBDIR = "checkpoints"
@@ -84,18 +84,17 @@ def packed_shapes(layout: list[dict]) -> dict[str, jax.ShapeDtypeStruct]:
 
 def unpack(packed: dict[str, Any], template: Any) -> Any:
     """Inverse of ``pack``: ``template`` (a state or its ``jax.eval_shape``) gives the structure."""
-    offsets = dict.fromkeys(packed, 0)
-    host = {name: np.asarray(array) for name, array in packed.items()}
+    layout = layout_of(template)
+    return tree_from_arrays(arrays_by_path(packed, layout), template, layout)
+
+
+def tree_from_arrays(arrays: dict[str, np.ndarray], template: Any, layout: list[dict]) -> Any:
+    """The pytree of ``template``'s structure (``layout`` is its layout) from one host array
+    per path; PRNG keys are wrapped back from their key data."""
     leaves, treedef = jax.tree.flatten(template)
     rebuilt = []
-    for like, entry in zip(leaves, layout_of(template)):
-        size = int(np.prod(entry["shape"]))
-        if size:
-            start = offsets[entry["dtype"]]
-            offsets[entry["dtype"]] = start + size
-            value = jnp.asarray(host[entry["dtype"]][start:start + size].reshape(entry["shape"]))
-        else:
-            value = jnp.zeros(entry["shape"], entry["dtype"])
+    for like, entry in zip(leaves, layout):
+        value = jnp.asarray(arrays[entry["path"]])
         if entry["key"]:
             impl = jax.random.key_impl(like) if isinstance(like, jax.Array) else None
             value = jax.random.wrap_key_data(value, impl=impl)
@@ -116,15 +115,6 @@ def arrays_by_path(packed: dict[str, Any], layout: list[dict]) -> dict[str, np.n
     return arrays
 
 
-def pack_by_layout(arrays: dict[str, np.ndarray], layout: list[dict]) -> dict[str, np.ndarray]:
-    """Inverse of :func:`arrays_by_path`: the flat per-dtype arrays of ``layout``'s order."""
-    groups: dict[str, list[np.ndarray]] = {}
-    for entry in layout:
-        groups.setdefault(entry["dtype"], []).append(np.asarray(arrays[entry["path"]], entry["dtype"]).ravel())
-    packed = {name: np.concatenate(parts) for name, parts in groups.items()}
-    return {name: array for name, array in packed.items() if array.size}
-
-
 def upgrade_float_step_counters(arrays: dict[str, np.ndarray], expected: list[dict]) -> dict[str, np.ndarray]:
     """Checkpoints written before step counters were exact hold ``env_steps`` as one float32;
     today's states hold a :class:`~mjx_emp.counters.StepCounter` (``.hi``, ``.lo`` int32)."""
@@ -132,7 +122,7 @@ def upgrade_float_step_counters(arrays: dict[str, np.ndarray], expected: list[di
     upgraded = dict(arrays)
     for path, value in arrays.items():
         if f"{path}.hi" in wanted and f"{path}.lo" in wanted and value.shape == () and value.dtype == np.float32:
-            hi, lo = divmod(int(value), 1 << DIGIT_BITS)
+            hi, lo = digits(int(value))
             del upgraded[path]
             upgraded[f"{path}.hi"], upgraded[f"{path}.lo"] = np.int32(hi), np.int32(lo)
     return upgraded
@@ -165,11 +155,14 @@ UPGRADES = (upgrade_renamed_fields, upgrade_float_step_counters)
 layout is not today's. Each maps {path: array} to {path: array} given today's layout."""
 
 
-def upgraded_layout(arrays: dict[str, np.ndarray], like: list[dict]) -> list[dict]:
-    """The layout of ``arrays`` in ``like``'s order where paths match (for error messages)."""
-    known = {entry["path"]: entry for entry in like}
-    return [{"path": path, "shape": list(value.shape), "dtype": value.dtype.name,
-             "key": known.get(path, {}).get("key", False)} for path, value in arrays.items()]
+def layout_in_order(arrays: dict[str, np.ndarray], expected: list[dict]) -> list[dict]:
+    """The layout of ``arrays`` in ``expected``'s order, a missing path marked as such and
+    paths ``expected`` lacks appended, so :func:`layout_mismatch` can compare the two."""
+    known = {entry["path"] for entry in expected}
+    found = [{**entry, "shape": list(arrays[entry["path"]].shape), "dtype": arrays[entry["path"]].dtype.name}
+             if entry["path"] in arrays else {**entry, "shape": "(missing)"} for entry in expected]
+    return found + [{"path": path, "shape": list(value.shape), "dtype": value.dtype.name, "key": False}
+                    for path, value in arrays.items() if path not in known]
 
 
 def layout_mismatch(saved: list[dict], expected: list[dict]) -> str | None:
@@ -277,7 +270,6 @@ class Checkpoints:
             saved_layout = self.manager.restore(epoch, args=ocp.args.Composite(layout=ocp.args.JsonRestore())).layout
         except Exception as err:  # orbax and JSON raise many types; all mean "unreadable"
             raise CheckpointError(f"{step_dir / 'layout'}: unreadable ({type(err).__name__}: {err})") from err
-        current = layout_mismatch(saved_layout, layout) is None
         try:
             restored = self.manager.restore(epoch, args=ocp.args.Composite(
                 state=ocp.args.StandardRestore(packed_shapes(saved_layout)),
@@ -285,17 +277,14 @@ class Checkpoints:
         except Exception as err:  # truncated or missing files surface as many error types
             reason = str(err).split(" [tensorstore_spec=")[0]  # drop tensorstore's long spec dump
             raise CheckpointError(f"{step_dir / 'state'}: unreadable ({type(err).__name__}: {reason})") from err
-        if current:
-            return unpack(restored.state, template)
         arrays = arrays_by_path(restored.state, saved_layout)
-        for upgrade in UPGRADES:
-            arrays = upgrade(arrays, layout)
-        got = {entry["path"]: entry for entry in upgraded_layout(arrays, layout)}
-        mismatch = layout_mismatch([got.get(e["path"], {**e, "shape": "(missing)"}) for e in layout], layout)
-        if mismatch or len(got) != len(layout):
-            mismatch = mismatch or f"{len(got)} arrays, expected {len(layout)}"
-            raise CheckpointError(f"{step_dir / 'layout'} does not fit this version's train state: {mismatch}")
-        return unpack(pack_by_layout(arrays, layout), template)
+        if saved_layout != layout:  # written by an earlier version
+            for upgrade in UPGRADES:
+                arrays = upgrade(arrays, layout)
+            mismatch = layout_mismatch(layout_in_order(arrays, layout), layout)
+            if mismatch:
+                raise CheckpointError(f"{step_dir / 'layout'} does not fit this version's train state: {mismatch}")
+        return tree_from_arrays(arrays, template, layout)
 
     def restore_latest(self, template: Any, expected: Any, fallback: bool = False) -> tuple[int, Any]:
         """The newest checkpoint that restores, as ``(epoch, state)``.
