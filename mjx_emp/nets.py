@@ -57,7 +57,7 @@ class LevelParams:
 
 def goal_features(env: Env, obs: jax.Array, goal: jax.Array) -> jax.Array:
     """Network input for (state, goal): the state's features and the offset goal - h(s)."""
-    return jnp.concatenate([env.features(obs), goal - env.goal_of_obs(obs)], axis=-1)
+    return jnp.concatenate([env.features(obs), env.goal_offset(obs, goal)], axis=-1)
 
 
 def primitive_box(_: Any, obs: jax.Array) -> tuple[jax.Array, jax.Array]:

@@ -148,3 +148,45 @@ def test_button_opens_cage(name):
     assert np.all(np.linalg.norm(walls, axis=-1) > 1000.0)
     # a new episode closes the cage again
     assert not bool(env.cage_open(env.reset(jax.random.key(1))))
+
+
+def turned_world(env, obs: np.ndarray, goal: np.ndarray, angle: float) -> tuple[np.ndarray, np.ndarray]:
+    """The same Ant state and goal with the whole world turned by ``angle`` about z (MuJoCo C math)."""
+    turn = np.array([np.cos(angle / 2), 0.0, 0.0, np.sin(angle / 2)])
+    rotation = np.zeros(9)
+    mujoco.mju_quat2Mat(rotation, turn)
+    rotation = rotation.reshape(3, 3)
+    obs = obs.copy()
+    obs[:3] = rotation @ obs[:3]
+    quat = np.zeros(4)
+    mujoco.mju_mulQuat(quat, turn, obs[3:7].astype(np.float64))
+    obs[3:7] = quat
+    nq = env.mj_model.nq
+    obs[nq : nq + 3] = rotation @ obs[nq : nq + 3]
+    return obs, (rotation[:2, :2] @ goal).astype(np.float32)
+
+
+def test_heading_frame_inputs_do_not_change_when_the_world_turns_and_world_inputs_do():
+    env, world = make_env("ant_field", heading_frame=True), make_env("ant_field")
+    m, rng = env.mj_model, np.random.default_rng(0)
+    d = mujoco.MjData(m)
+    d.qpos[:] = env.home_qpos
+    for _ in range(30):  # a tumbled, moving Ant: tilt, yaw and velocity all nonzero
+        d.ctrl[:] = rng.uniform(-1, 1, m.nu)
+        for _ in range(env.action_repeat):
+            mujoco.mj_step(m, d)
+    obs = np.concatenate([d.qpos, d.qvel]).astype(np.float32)
+    goal = obs[:2] + np.array([1.0, 0.5], np.float32)
+    for angle in (0.3, 1.7, -2.9, np.pi):
+        turned_obs, turned_goal = turned_world(env, obs, goal, angle)
+        np.testing.assert_allclose(env.features(turned_obs), env.features(obs), atol=1e-4)
+        np.testing.assert_allclose(env.goal_offset(turned_obs, turned_goal), env.goal_offset(obs, goal), atol=1e-5)
+        assert np.abs(world.features(turned_obs) - world.features(obs)).max() > 0.1
+    # Facing +x already, the goal offset is the world offset.
+    np.testing.assert_allclose(env.goal_offset(env.home_qpos, env.home_qpos[:2] + np.array([1.0, 2.0])),
+                               [1.0, 2.0], atol=1e-6)
+
+
+def test_heading_frame_needs_a_free_torso():
+    with pytest.raises(ValueError, match="heading_frame: 'half_cheetah_field' has no free torso"):
+        make_env("half_cheetah_field", heading_frame=True)

@@ -232,6 +232,7 @@ def test_restore_round_trips_observations():
         (dict(init_half_width=(0.3, 9.0)), "init_half_width"),
         (dict(gamma=1.0), "gamma"),
         (dict(num_envs=0), "num_envs"),
+        (dict(heading_frame=True), "heading_frame: 'point_mass' has no free torso"),
     ],
 )
 def test_bad_train_config_names_the_field(change, field):

@@ -79,6 +79,11 @@ class Env:
     goal_qpos: tuple[int, ...]
     cage: Cage | None
     torso_quat: int | None = None
+    heading_frame: bool = False
+    """Express what networks see in the torso's heading frame (robots with a free torso):
+    the yaw is taken out of the torso quaternion and the world-frame torso velocity and
+    goal offset are turned by minus the yaw, so a skill learnt facing one way applies
+    facing any other (see :meth:`features` and :meth:`goal_offset`)."""
     feature_mean: np.ndarray | None = None
     feature_std: np.ndarray | None = None
 
@@ -185,10 +190,43 @@ class Env:
         +-10): under random actions their joint speeds have standard deviations of 2-8
         rad/s, beside quaternion entries below 1.
         """
+        if self.heading_frame:
+            obs = self._without_yaw(obs)
         raw = obs if self.cage is not None else obs[..., self.feature_index(obs.shape[-1])]
         if self.feature_mean is None:
             return raw
         return jnp.clip((raw - self.feature_mean) / self.feature_std, -10.0, 10.0)
+
+    def goal_offset(self, obs: jax.Array, goal: jax.Array) -> jax.Array:
+        """What networks see of a goal: goal - h(s), turned into the heading frame if set."""
+        offset = goal - self.goal_of_obs(obs)
+        if not self.heading_frame:
+            return offset
+        return rotate_xy(offset, -self._yaw(obs))
+
+    def _yaw(self, obs: jax.Array) -> jax.Array:
+        """Heading of the torso about the world z axis, read from its quaternion."""
+        w, x, y, z = (obs[..., self.torso_quat + i] for i in range(4))
+        return jnp.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+    def _without_yaw(self, obs: jax.Array) -> jax.Array:
+        """``obs`` as seen facing +x: quaternion q -> q_yaw^-1 q (sign fixed so w >= 0), world
+        x-y velocity turned by -yaw.
+
+        A free joint's first three velocities are world-frame linear velocity (its angular
+        velocity is already in the torso's frame, so it stays).
+        """
+        obs = jnp.asarray(obs)
+        half = -0.5 * self._yaw(obs)
+        c, s = jnp.cos(half), jnp.sin(half)
+        q = self.torso_quat
+        w, x, y, z = (obs[..., q + i] for i in range(4))
+        # (c, 0, 0, s) * (w, x, y, z), Hamilton product
+        quat = jnp.stack([c * w - s * z, c * x - s * y, c * y + s * x, c * z + s * w], axis=-1)
+        quat = jnp.where(quat[..., :1] < 0.0, -quat, quat)  # q and -q are one rotation: keep w >= 0
+        vel = self.mj_model.nq
+        turned = rotate_xy(obs[..., vel : vel + 2], 2.0 * half)
+        return obs.at[..., q : q + 4].set(quat).at[..., vel : vel + 2].set(turned)
 
     def feature_index(self, obs_size: int) -> np.ndarray:
         """Indices of an observation that an open-field network sees (all but h(s))."""
@@ -236,6 +274,13 @@ def tree_where(condition: jax.Array, on_true, on_false):
     return jax.tree.map(pick, on_true, on_false)
 
 
+def rotate_xy(vector: jax.Array, angle: jax.Array) -> jax.Array:
+    """Turn the x-y vectors in the last axis of ``vector`` by ``angle`` radians (counter-clockwise)."""
+    c, s = jnp.cos(angle), jnp.sin(angle)
+    x, y = vector[..., 0], vector[..., 1]
+    return jnp.stack([c * x - s * y, s * x + c * y], axis=-1)
+
+
 def _no_resets() -> dict[str, jax.Array]:
     """Zeroed reset counters of a fresh environment state."""
     zero = jnp.zeros((), jnp.int32)
@@ -281,11 +326,18 @@ def _make_cage(m: mujoco.MjModel, spec: DomainSpec) -> Cage:
 
 
 @functools.cache
-def make_env(name: str) -> Env:
-    """Build a domain by name (see :data:`DOMAINS`); cached so every caller shares one Env."""
+def make_env(name: str, heading_frame: bool = False) -> Env:
+    """Build a domain by name (see :data:`DOMAINS`); cached so every caller shares one Env.
+
+    ``heading_frame`` (robots with a free torso only) shows networks the state and goal
+    in the torso's heading frame (:attr:`Env.heading_frame`).
+    """
     if name not in DOMAINS:
         raise ConfigError(f"env name {name!r} is unknown; allowed values: {sorted(DOMAINS)}")
     spec = DOMAINS[name]
+    if heading_frame and spec.torso_quat is None:
+        raise ConfigError(f"heading_frame: {name!r} has no free torso to take a heading from; "
+                          f"allowed only for {sorted(n for n, d in DOMAINS.items() if d.torso_quat is not None)}")
     m = mujoco.MjModel.from_xml_path(str(MODELS_DIR / spec.xml))
     d = mujoco.MjData(m)
     d.qpos[:] = _home_qpos(m)
@@ -303,6 +355,7 @@ def make_env(name: str) -> Env:
         goal_qpos=spec.goal_qpos,
         cage=_make_cage(m, spec) if spec.caged else None,
         torso_quat=spec.torso_quat,
+        heading_frame=heading_frame,
     )
     if spec.standardize:
         mean, std = random_action_feature_stats(env)

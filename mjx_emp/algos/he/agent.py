@@ -132,7 +132,7 @@ class Trainer:
 
     def __post_init__(self):
         check_train_config(self.cfg)
-        env = make_env(self.cfg.env)
+        env = make_env(self.cfg.env, self.cfg.heading_frame)
         object.__setattr__(self, "env", env)
         policies = tuple(
             level_policy(env, self.actor_net(level), primitive_box if level == 0 else self.learned_box(level - 1))

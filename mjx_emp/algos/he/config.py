@@ -23,6 +23,9 @@ class TrainConfig:
 
     env: str = "point_mass"
     """Domain: point_mass, ant_field, ant_cage, half_cheetah_field or half_cheetah_cage."""
+    heading_frame: bool = False
+    """Networks see the state and goal offset in the torso's heading frame (Ant domains
+    only; see Env.heading_frame). False is the paper's world-frame input."""
     n: tuple[int, ...] = (10,)
     """Maximum number of actions per level (the paper's n), bottom level first."""
     sigma_gc: tuple[float, ...] = (0.2,)
@@ -117,6 +120,9 @@ def check_train_config(cfg: TrainConfig) -> None:
     """Raise ConfigError naming the first invalid field of ``cfg`` and what it allows."""
     if cfg.env not in DOMAINS:
         raise ConfigError(f"env: {cfg.env!r} is unknown; allowed values: {sorted(DOMAINS)}")
+    if cfg.heading_frame and DOMAINS[cfg.env].torso_quat is None:
+        allowed = sorted(name for name, spec in DOMAINS.items() if spec.torso_quat is not None)
+        raise ConfigError(f"heading_frame: {cfg.env!r} has no free torso; allowed only with env in {allowed}")
     check_levels(cfg.n, cfg.eps)
     for name in _PER_LEVEL:
         value = getattr(cfg, name)
