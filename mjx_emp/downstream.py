@@ -94,7 +94,7 @@ class Phase2Trainer:
         k, phase1 = self.level, self.phase1.cfg
         policy = level_policy(self.env, self.actor_net, self.phase1.learned_box(k - 1))
         hierarchy = Hierarchy(
-            self.env, self.phase1.hierarchy.policies[:k] + (policy,),
+            self.env, self.phase1.hierarchy.policies + (policy,),
             n=tuple(phase1.n) + (self.cfg.n,), eps=tuple(phase1.eps) + (self.cfg.eps,),
         )
         object.__setattr__(self, "hierarchy", hierarchy)
@@ -171,7 +171,7 @@ class Phase2Trainer:
         """Greedy phase-2 episodes (goals from the region), showing the task's goal as level
         k's and the subgoals below it."""
         params = self.rollout_params(state, jnp.zeros(()))
-        return RolloutPlan(self.hierarchy, params, self.start, None, root=self.level, shown_levels=self.level + 1)
+        return RolloutPlan(self.hierarchy, params, self.start, None, root=self.level)
 
     def max_chunks(self) -> int:
         """Rollout calls that let every environment finish one episode (every attempt used)."""

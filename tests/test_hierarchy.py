@@ -10,7 +10,15 @@ import pytest
 from mjx_emp.envs.env import make_env
 from mjx_emp.envs.scripted import bounded_hop, point_mass_pd
 from mjx_emp.nets import mlp_agent
-from mjx_emp.rollout.hierarchy import Hierarchy, decide, decision_buckets, default_start, jit_init_rollout, jit_rollout
+from mjx_emp.rollout.hierarchy import (
+    Driver,
+    Hierarchy,
+    decide,
+    decision_buckets,
+    default_start,
+    jit_init_rollout,
+    jit_rollout,
+)
 
 ENV = make_env("point_mass")
 START = default_start(ENV, goal_half_width=3.0)
@@ -103,6 +111,28 @@ def test_shapes_and_action_limits(k):
     # A level's actions complete exactly when the level below finishes.
     for lower, upper in zip(transitions[:-1], transitions[1:]):
         np.testing.assert_array_equal(upper.valid, lower.final & lower.valid)
+
+
+def test_a_driver_hands_the_top_level_n_goals_per_episode_and_never_reaches():
+    calls = []
+
+    def toward_plus_x(params, obs, goal, key):  # the driver's goal is meaningless; it ignores it
+        calls.append(1)
+        return jnp.array([0.5, 0.0])
+
+    h = Hierarchy(ENV, (steer, hop), n=(20, 8), eps=(0.1, 0.3), driver=Driver(toward_plus_x, n=3))
+    assert (h.k, h.rows) == (2, 3)
+    _, _, (t0, t1, t2), _ = run(h, (None, None, None), jax.random.key(0), 8, 400, root=2)
+    t1, t2 = jax.tree.map(np.asarray, (t1, t2))
+    assert not t2.reached.any()
+    assert run_lengths(t2, 3) == 3  # only the count of 3 top-level skills ends a driver episode
+    np.testing.assert_array_equal(t2.valid, t1.final & t1.valid)
+    # Every top-level goal is the driver's offset from where the top level received it.
+    offsets = (t1.goal - t1.obs[..., :2])[t1.valid]
+    np.testing.assert_allclose(offsets, np.broadcast_to([0.5, 0.0], offsets.shape), atol=1e-5)
+    assert t1.valid.sum() > 24 and len(calls) > 0
+    with pytest.raises(ValueError, match=r"root must be in 0..2 \(2 is the driver\); got 3"):
+        jit_init_rollout(h, (None, None, None), START, None, jax.random.key(0), 8, 3)
 
 
 def test_controlled_run_respects_n_at_both_levels():

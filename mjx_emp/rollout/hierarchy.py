@@ -27,6 +27,11 @@ The root (the level whose episodes restart) is data, not structure: the carry al
 holds all k levels and levels above the root stay idle. One compiled rollout therefore
 serves training at every level, which keeps a whole curriculum epoch down to a single
 copy of the physics in the compiled program.
+
+A hierarchy may also have a :class:`Driver` above its top level: a goal-free chooser
+that keeps handing the top level goals, ``n`` of them per driver episode, and is never
+"reached" (Hierarchical Empowerment's start-state chain). It runs in the same scan as
+the levels (rooted at index k), so the chain costs no second copy of the physics.
 """
 
 from __future__ import annotations
@@ -58,13 +63,32 @@ StartFn = Callable[[Any, jax.Array], tuple[EnvState, jax.Array, Any]]
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
+class Driver:
+    """A goal-free chooser above a hierarchy's top level.
+
+    Rooted at it (root = k), an episode is ``n`` top-level skills in a row, each goal
+    from ``policy`` (called like a level policy; the goal it is handed is meaningless);
+    the driver never reaches anything, so only ``n`` (or a reset) ends its episodes.
+    """
+
+    policy: LevelPolicy
+    n: int
+
+    def __post_init__(self):
+        if self.n < 1:
+            raise ConfigError(f"driver n: must be >= 1; got {self.n}")
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
 class Hierarchy:
-    """A k-level agent's static structure: env, one policy per level, n and eps per level."""
+    """A k-level agent's static structure: env, one policy per level, n and eps per level,
+    and optionally a :class:`Driver` above the top."""
 
     env: Env
     policies: tuple[LevelPolicy, ...]
     n: tuple[int, ...]
     eps: tuple[float, ...]
+    driver: Driver | None = None
 
     def __post_init__(self):
         if not self.policies:
@@ -73,21 +97,38 @@ class Hierarchy:
 
     @property
     def k(self) -> int:
+        """Levels of skills (the driver, if any, is not one)."""
         return len(self.policies)
+
+    @property
+    def rows(self) -> int:
+        """Entries of the per-level carry: the k levels plus the driver's, if any."""
+        return self.k + (self.driver is not None)
+
+    def policy(self, i: int) -> LevelPolicy:
+        """Policy of carry row ``i`` (row k is the driver)."""
+        return self.driver.policy if i == self.k else self.policies[i]
+
+    def actions_per_episode(self, i: int) -> int:
+        """Most actions of carry row ``i`` before it finishes (row k: the driver's n)."""
+        return self.driver.n if i == self.k else self.n[i]
 
 
 @dataclasses.dataclass(frozen=True)
 class RolloutPlan:
     """A rollout someone outside the agent can replay (a renderer, a plot): the hierarchy,
-    per-level params, start function and its params, the root level, and how many levels
-    from the bottom have goals worth showing."""
+    per-row params, start function and its params, and the root (k for the driver)."""
 
     hierarchy: Hierarchy
     params: tuple
     start: StartFn
     start_params: Any
     root: int
-    shown_levels: int
+
+    @property
+    def levels_with_goals(self) -> int:
+        """Levels 0..root that pursue goals (the driver, if rooted, has none)."""
+        return min(self.root, self.hierarchy.k - 1) + 1
 
 
 @struct.dataclass
@@ -137,7 +178,8 @@ class EpisodeEnd:
 class RolloutState:
     """Batched environments plus the per-level controller state carried between steps.
 
-    Tuples are indexed by level 0..k-1; levels above ``root`` are idle.
+    Tuples are indexed by carry row (level 0..k-1, then the driver's row k if there is
+    one); rows above ``root`` are idle.
     ``issued_obs[i]``/``issued_action[i]`` hold the observation and action with which
     level i's current action began (for level 0 they are refreshed every step).
     ``episode`` is the start info of each environment's current root episode and
@@ -254,11 +296,11 @@ def _issue_subgoals(
     env = hierarchy.env
     obs = jax.vmap(env.observe)(env_state)
     pos = jax.vmap(env.goal_of)(env_state)
-    decisions = [jnp.zeros((), jnp.int32) for _ in range(hierarchy.k)]
-    for i in range(hierarchy.k - 1, 0, -1):
+    decisions = [jnp.zeros((), jnp.int32) for _ in range(hierarchy.rows)]
+    for i in range(hierarchy.rows - 1, 0, -1):
         need = finished[i - 1] & (i <= root)
         z, decisions[i] = decide(
-            hierarchy.policies[i], params[i], obs, goals[i], keys[i], need, issued_action[i]
+            hierarchy.policy(i), params[i], obs, goals[i], keys[i], need, issued_action[i]
         )
         issued_action[i] = z
         issued_obs[i] = jnp.where(need[:, None], obs, issued_obs[i])
@@ -275,7 +317,8 @@ def init_rollout(
     batch_size: int,
     root: int | jax.Array | None = None,
 ) -> RolloutState:
-    """Start ``batch_size`` episodes of the agent rooted at level ``root`` (default: the top).
+    """Start ``batch_size`` episodes of the agent rooted at level ``root`` (default: the top
+    level; k is the driver).
 
     ``root`` may be a traced integer: the rollout's compiled program does not depend on it.
     """
@@ -289,20 +332,20 @@ def init_rollout(
     )
     obs = jax.vmap(env.observe)(env_state)
     zeros_goal = jnp.zeros((batch_size, env.goal_size), obs.dtype)
-    goals = [jnp.where(root == i, root_goal, zeros_goal) for i in range(hierarchy.k)]
-    issued_obs = [obs for _ in range(hierarchy.k)]
+    goals = [jnp.where(root == i, root_goal, zeros_goal) for i in range(hierarchy.rows)]
+    issued_obs = [obs for _ in range(hierarchy.rows)]
     issued_action = [jnp.zeros((batch_size, env.action_size), obs.dtype)] + [
-        zeros_goal for _ in range(hierarchy.k - 1)
+        zeros_goal for _ in range(hierarchy.rows - 1)
     ]
-    everyone = [jnp.ones(batch_size, bool) for _ in range(hierarchy.k)]
+    everyone = [jnp.ones(batch_size, bool) for _ in range(hierarchy.rows)]
     _issue_subgoals(
         hierarchy, params, root, env_state, goals, issued_obs, issued_action, everyone,
-        _level_keys(level_key, batch_size, hierarchy.k),
+        _level_keys(level_key, batch_size, hierarchy.rows),
     )
     return RolloutState(
         env=env_state,
         goals=tuple(goals),
-        counts=tuple(jnp.zeros(batch_size, jnp.int32) for _ in range(hierarchy.k)),
+        counts=tuple(jnp.zeros(batch_size, jnp.int32) for _ in range(hierarchy.rows)),
         issued_obs=tuple(issued_obs),
         issued_action=tuple(issued_action),
         root=root,
@@ -313,11 +356,13 @@ def init_rollout(
 
 
 def _check_root(hierarchy: Hierarchy, root: int | jax.Array) -> None:
-    """Reject a concrete root outside 0..k-1 (a traced root is the caller's promise)."""
+    """Reject a concrete root outside 0..k-1, or 0..k with a driver (a traced root is the
+    caller's promise)."""
     if isinstance(root, jax.core.Tracer):
         return
-    if not 0 <= int(root) < hierarchy.k:
-        raise ConfigError(f"root must be a level in 0..{hierarchy.k - 1}; got {root}")
+    if not 0 <= int(root) < hierarchy.rows:
+        driver = f" ({hierarchy.k} is the driver)" if hierarchy.driver is not None else ""
+        raise ConfigError(f"root must be in 0..{hierarchy.rows - 1}{driver}; got {root}")
 
 
 def _scan_step(hierarchy, params, start, start_params, state: RolloutState, _):
@@ -326,7 +371,7 @@ def _scan_step(hierarchy, params, start, start_params, state: RolloutState, _):
     root = state.root
     batch = state.counts[0].shape[0]
     key, policy_key, start_key = jax.random.split(state.key, 3)
-    keys = _level_keys(policy_key, batch, hierarchy.k)
+    keys = _level_keys(policy_key, batch, hierarchy.rows)
     goals, counts = list(state.goals), list(state.counts)
     issued_obs, issued_action = list(state.issued_obs), list(state.issued_action)
 
@@ -342,11 +387,14 @@ def _scan_step(hierarchy, params, start, start_params, state: RolloutState, _):
     # 2. Bottom-up: levels whose action completed count it and check their goal.
     transitions, finished, reached_by_level = [], [], []
     completed = jnp.ones(batch, bool)
-    for i in range(hierarchy.k):
+    for i in range(hierarchy.rows):
         completed = completed & (i <= root)
         count = counts[i] + completed.astype(jnp.int32)
-        reached = completed & (jnp.linalg.norm(pos - goals[i], axis=-1) < hierarchy.eps[i])
-        done = completed & (reached | (count >= hierarchy.n[i]) | broke)
+        if i < hierarchy.k:
+            reached = completed & (jnp.linalg.norm(pos - goals[i], axis=-1) < hierarchy.eps[i])
+        else:  # the driver has no goal to reach
+            reached = jnp.zeros(batch, bool)
+        done = completed & (reached | (count >= hierarchy.actions_per_episode(i)) | broke)
         transitions.append(
             Transition(
                 obs=issued_obs[i], goal=goals[i], action=issued_action[i], next_obs=next_obs,
@@ -413,8 +461,8 @@ def rollout(
 ) -> tuple[RolloutState, tuple[Transition, ...], EpisodeEnd, RolloutStats]:
     """Advance every environment ``num_steps`` primitive actions.
 
-    Returns the new state, per-level transitions (all k levels; those above the root are
-    never valid), the root episodes that ended, and totals. Jit with ``hierarchy``, ``start`` and
+    Returns the new state, per-row transitions (all k levels and the driver's row, if
+    any; those above the root are never valid), the root episodes that ended, and totals. Jit with ``hierarchy``, ``start`` and
     ``num_steps`` static (see :func:`jit_rollout`); everything else, the root included,
     may change between calls without recompiling. Static arguments hash by identity, so
     keep one ``Hierarchy`` and one ``start`` function object per agent: a freshly built

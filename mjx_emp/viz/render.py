@@ -63,7 +63,7 @@ def record_rollout(plan: RolloutPlan, key, steps: int) -> Recording:
         data = jax.device_get(rollout_state.env.data)
         qpos.append(np.asarray(data.qpos[0]))
         mocap.append(np.asarray(data.mocap_pos[0]))
-        goals.append(np.stack([np.asarray(g[0]) for g in rollout_state.goals[: plan.shown_levels]]))
+        goals.append(np.stack([np.asarray(g[0]) for g in rollout_state.goals[: plan.levels_with_goals]]))
     return Recording(np.stack(qpos), np.stack(mocap), np.stack(goals))
 
 

@@ -46,7 +46,16 @@ from mjx_emp.nets import (
 )
 from mjx_emp.replay import ReplayBuffer, flatten_rows, replay_clear_where, replay_init, replay_insert, replay_sample
 from mjx_emp.rollout.collect import CollectTotals, collect
-from mjx_emp.rollout.hierarchy import EpisodeEnd, Hierarchy, Params, RolloutPlan, RolloutState, init_rollout, rollout
+from mjx_emp.rollout.hierarchy import (
+    Driver,
+    EpisodeEnd,
+    Hierarchy,
+    Params,
+    RolloutPlan,
+    RolloutState,
+    init_rollout,
+    rollout,
+)
 from mjx_emp.tracing import count_trace
 
 TRAIN_EPOCH_TRACE = "he.train_epoch"
@@ -54,8 +63,6 @@ TRAIN_EPOCH_TRACE = "he.train_epoch"
 # What a schedule item does.
 MODE_STARTS, MODE_GC, MODE_GS, MODE_EVAL = 0, 1, 2, 3
 MODE_NAMES = {MODE_STARTS: "starts", MODE_GC: "gc", MODE_GS: "gs", MODE_EVAL: "eval"}
-# Offset of the start-state chain's goal: never reached, the chain ends on its action count.
-_UNREACHABLE = 1e6
 
 
 @struct.dataclass
@@ -137,10 +144,10 @@ class Trainer:
         policies = tuple(
             level_policy(env, self.actor_net(level), primitive_box if level == 0 else self.learned_box(level - 1))
             for level in range(self.cfg.k)
-        ) + (self._chooser,)
+        )
         hierarchy = Hierarchy(
-            env, policies, n=tuple(self.cfg.n) + (self.cfg.start_chain,),
-            eps=tuple(self.cfg.eps) + (self.cfg.eps[-1],),
+            env, policies, n=tuple(self.cfg.n), eps=tuple(self.cfg.eps),
+            driver=Driver(self._chooser, self.cfg.start_chain),
         )
         object.__setattr__(self, "hierarchy", hierarchy)
 
@@ -174,7 +181,7 @@ class Trainer:
         return box
 
     def _chooser(self, params: Params, obs: jax.Array, goal: jax.Array, key: jax.Array) -> jax.Array:
-        """The start-state chain's top: a skill drawn uniformly from the top goal space."""
+        """The start-state chain's driver: a skill drawn uniformly from the top goal space."""
         del goal
         action = self.goal_space_action(self.cfg.k - 1, params, obs)
         return gce.sample_goal(gce.goal_noise(key, (self.env.goal_size,)), action)
@@ -269,15 +276,15 @@ class Trainer:
         goals of levels 0..k-1."""
         k = self.cfg.k
         params, start_params = self.rollout_inputs(state, jnp.int32(k), jnp.int32(MODE_STARTS))
-        return RolloutPlan(self.hierarchy, params, self.start, start_params, root=k, shown_levels=k)
+        return RolloutPlan(self.hierarchy, params, self.start, start_params, root=k)
 
     def start(self, start_params: StartParams, key: jax.Array):
         """A new episode at level ``start_params.root``: s0 from its start buffer, z from its noisy box.
 
-        Root k is the start-state chain: it begins at the initial state and its goal is
-        never reached.
+        Root k is the start-state chain (the hierarchy's driver): it begins at the initial
+        state, and the goal returned for it is ignored.
         """
-        env, k, d = self.env, self.cfg.k, self.env.goal_size
+        env, d = self.env, self.env.goal_size
         pick_key, box_key, noise_key, env_key = jax.random.split(key, 4)
         candidates = [replay_sample(buf, pick_key, 1)[0] for buf in start_params.starts]
         s0 = jnp.stack(candidates + [jnp.asarray(self.initial_obs)])[start_params.root]
@@ -288,7 +295,7 @@ class Trainer:
         jitter = start_params.goal_noise * jax.random.normal(box_key, (2 * d,))
         action = jnp.concatenate([shift + jitter[:d] * jnp.exp(log_half_width), log_half_width + jitter[d:]])
         noise = gce.goal_noise(noise_key, (d,))
-        z = jnp.where(start_params.root == k, _UNREACHABLE, gce.sample_goal(noise, action))
+        z = gce.sample_goal(noise, action)
         return state, env.goal_of_obs(s0) + z, EpisodeInfo(obs=s0, noise=noise, action=action)
 
     def _max_chunks(self) -> jax.Array:
