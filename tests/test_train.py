@@ -248,3 +248,16 @@ def test_trainers_of_equal_configs_share_one_compiled_epoch():
     twin.train_epoch(jax.tree.map(jnp.copy, state))
     assert traces(TRAIN_EPOCH_TRACE) == before, "an equal config recompiled the epoch"
     assert Trainer(dataclasses.replace(TINY, seed=TINY.seed + 1)) != trainer
+
+
+def test_seeds_under_one_vmap_train_as_separate_runs_do():
+    """The agent is pure functions over its state: vmapping init and an epoch over two keys
+    gives each key's separate run (so seeds can share one program, issue 16)."""
+    trainer = tiny_trainer()
+    keys = jax.random.split(jax.random.key(7), 2)
+    together, _ = jax.jit(jax.vmap(trainer.train_epoch))(jax.vmap(trainer.init)(keys))
+    for i, key in enumerate(keys):
+        alone, _ = trainer.train_epoch(trainer.init(key))
+        for mine, theirs in zip(jax.tree.leaves(alone.policies), jax.tree.leaves(together.policies)):
+            np.testing.assert_allclose(mine, theirs[i], atol=1e-5)
+    assert not np.allclose(jax.tree.leaves(together.policies)[0][0], jax.tree.leaves(together.policies)[0][1])
