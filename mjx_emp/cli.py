@@ -9,11 +9,12 @@ import json
 import sys
 import time
 from pathlib import Path
+from typing import Annotated, Any, Union
 
 import tyro
 
 from mjx_emp.algos.he.presets import PHASE2_PRESETS, phase2_preset_for
-from mjx_emp.algos.registry import all_presets
+from mjx_emp.algos.registry import algorithm_of, all_presets
 from mjx_emp.checks import check_levels
 from mjx_emp.commands import (
     EvalExperiment,
@@ -155,8 +156,13 @@ def evaluate(exp: EvalExperiment) -> dict:
     import jax
 
     from mjx_emp.metrics import aggregate_agent, aggregate_phase2, aggregate_runs
-    from mjx_emp.run.evaluate import COVERAGE_SKILLS, phase1_figures, phase2_figures
+    from mjx_emp.run.evaluate import COVERAGE_SKILLS, phase1_figures, phase2_figures, skill_figures
 
+    algorithms = {algorithm_of(run.read_run_config(Path(d), "run_dirs")).name for d in exp.run_dirs}
+    if len(algorithms) > 1:
+        raise ConfigError(f"run_dirs: runs of one algorithm at a time (they are aggregated); got {sorted(algorithms)}")
+    if algorithms != {"he"}:
+        return evaluate_skills(exp, skill_figures)
     runs = []
     for run_dir in exp.run_dirs:
         trainer, _, state = run.load_run(Path(run_dir))
@@ -189,6 +195,32 @@ def evaluate(exp: EvalExperiment) -> dict:
               f"{p2['min_distance']['stderr']:.2g}, success {p2['success']['mean']:.3g} ± {p2['success']['stderr']:.2g}")
     else:
         print("phase 2: no run has a phase-2 directory (train one with `mjx-emp phase2 RUN_DIR`)")
+    print(f"wrote {out}")
+    return report
+
+
+def evaluate_skills(exp: EvalExperiment, skill_figures) -> dict:
+    """``mjx-emp eval`` for flat skill learners: coverage and posterior std per run, aggregated."""
+    import jax
+
+    from mjx_emp.metrics import mean_and_stderr
+    from mjx_emp.run.evaluate import COVERAGE_SKILLS
+
+    runs = []
+    for run_dir in exp.run_dirs:
+        agent, _, state = run.load_run(Path(run_dir))
+        runs.append({"run_dir": run_dir, **skill_figures(agent, state, jax.random.key(exp.seed))})
+    report = {"runs": runs, "coverage_cells": mean_and_stderr([r["coverage_cells"] for r in runs])}
+    stds = [r["posterior_std"] for r in runs if r["posterior_std"] is not None]
+    if stds:
+        report["posterior_std"] = mean_and_stderr(stds)
+    out = Path(exp.out or Path(exp.run_dirs[0]) / "eval.json")
+    out.write_text(json.dumps(report, indent=1))
+    cover = report["coverage_cells"]
+    print(f"{len(runs)} {runs[0]['algorithm']} run(s); coverage ({COVERAGE_SKILLS} greedy skills from the initial "
+          f"state, 1 m cells of goal space): {cover['mean']:.3g} ± {cover['stderr']:.2g} cells")
+    if stds:
+        print(f"posterior mean std: {report['posterior_std']['mean']:.3g} ± {report['posterior_std']['stderr']:.2g}")
     print(f"wrote {out}")
     return report
 
@@ -234,6 +266,17 @@ COMMANDS = {
 }
 
 
+def preset_commands() -> Any:
+    """``mjx-emp train``'s subcommands: one per preset, typed by its algorithm's config, so
+    every field of that config is a flag (tyro reads the type from the annotation)."""
+    commands = [
+        Annotated[TrainExperiment[type(cfg)],
+                  tyro.conf.subcommand(name, default=TrainExperiment(config=cfg), description=description)]
+        for name, (description, cfg) in all_presets().items()
+    ]
+    return Union[tuple(commands)]  # noqa: UP007 (a runtime union of Annotated types)
+
+
 def main(argv: list[str] | None = None) -> None:
     """Entry point of the ``mjx-emp`` console script.
 
@@ -265,9 +308,7 @@ def main(argv: list[str] | None = None) -> None:
             exp = tyro.cli(ResumeExperiment, args=argv[1:], prog="mjx-emp train --resume")
             main_guarded(run.resume, exp)
             return
-        presets = {name: (desc, TrainExperiment(config=cfg)) for name, (desc, cfg) in all_presets().items()}
-        exp = tyro.extras.overridable_config_cli(presets, args=argv[1:], prog="mjx-emp train")
-        main_guarded(run.train, exp)
+        main_guarded(run.train, tyro.cli(preset_commands(), args=argv[1:], prog="mjx-emp train"))
         return
     configs = {name: config for name, (config, _) in COMMANDS.items()}
     cfg = tyro.extras.subcommand_cli_from_dict(configs, args=argv, prog="mjx-emp")

@@ -8,23 +8,25 @@ rollout command offers exactly the domains that exist.
 from __future__ import annotations
 
 import dataclasses
-from typing import Annotated, Literal
+from typing import Annotated, Generic, Literal, TypeVar
 
 import tyro
 
-from mjx_emp.algos.he.config import Phase2Config, TrainConfig
+from mjx_emp.algos.he.config import Phase2Config
 from mjx_emp.envs.registry import DOMAIN_NAMES
+
+ConfigT = TypeVar("ConfigT")
 
 
 @dataclasses.dataclass(frozen=True)
-class TrainExperiment:
-    """Phase-1 Hierarchical Empowerment training.
+class TrainExperiment(Generic[ConfigT]):
+    """Training of any registered algorithm (Hierarchical Empowerment's phase 1, or a baseline).
 
     RUN_DIR receives config.json, metrics.jsonl (one line per epoch) and checkpoints/ (an
     orbax checkpoint after every epoch; continue with `mjx-emp train --resume RUN_DIR`).
     """
 
-    config: Annotated[TrainConfig, tyro.conf.OmitArgPrefixes]
+    config: Annotated[ConfigT, tyro.conf.OmitArgPrefixes]
     run_dir: str = ""
     """Run directory; empty picks runs/<env>-k<k>-<date>-<time>. Must not hold a run already."""
     keep_checkpoints: int = 3

@@ -14,6 +14,8 @@ from typing import Any, Protocol
 
 from mjx_emp.algos.he.config import TrainConfig, check_train_config
 from mjx_emp.algos.he.presets import PRESETS as HE_PRESETS
+from mjx_emp.algos.skills.config import DadsConfig, DiaynConfig, HidioConfig, MetraConfig, check_skill_config
+from mjx_emp.algos.skills.presets import PRESETS as SKILL_PRESETS
 from mjx_emp.checks import config_from_dict
 from mjx_emp.errors import ConfigError
 
@@ -63,8 +65,23 @@ def _he_agent(cfg: TrainConfig) -> Agent:
     return Trainer(cfg)
 
 
+def _skill_agent(cfg: Any) -> Agent:
+    from mjx_emp.algos.skills.agent import SkillAgent  # deferred: JAX loads only when an agent is built
+
+    return SkillAgent(cfg)
+
+
+def _skill_algorithm(name: str, config_type: type) -> Algorithm:
+    presets = {preset: entry for preset, entry in SKILL_PRESETS.items() if preset.startswith(f"{name}-")}
+    return Algorithm(name, config_type, check_skill_config, presets, _skill_agent)
+
+
 ALGORITHMS: dict[str, Algorithm] = {
     "he": Algorithm("he", TrainConfig, check_train_config, HE_PRESETS, _he_agent),
+    "diayn": _skill_algorithm("diayn", DiaynConfig),
+    "hidio": _skill_algorithm("hidio", HidioConfig),
+    "dads": _skill_algorithm("dads", DadsConfig),
+    "metra": _skill_algorithm("metra", MetraConfig),
 }
 
 

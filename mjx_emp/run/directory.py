@@ -20,7 +20,7 @@ import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
-from mjx_emp.algos.he.config import Phase2Config, TrainConfig, check_phase2_config
+from mjx_emp.algos.he.config import Phase2Config, check_phase2_config
 from mjx_emp.algos.registry import algorithm_of, config_from_json, config_to_json, make_agent
 from mjx_emp.checks import config_from_dict
 from mjx_emp.commands import Phase2Experiment, ResumeExperiment, TrainExperiment
@@ -33,9 +33,12 @@ SKILLS_FILE = "skills.json"
 """In a phase-2 directory: the phase-1 config of the skills it builds on."""
 
 
-def default_run_dir(cfg: TrainConfig) -> str:
-    """A fresh run directory name: runs/<env>-k<k>-<date>-<time>."""
-    return f"runs/{cfg.env}-k{cfg.k}-{time.strftime('%Y%m%d-%H%M%S')}"
+def default_run_dir(cfg) -> str:
+    """A fresh run directory name: runs/<env>-k<k>-<date>-<time> for HE, runs/<algorithm>-<env>-<date>-<time>
+    for the others."""
+    stamp = time.strftime('%Y%m%d-%H%M%S')
+    name = algorithm_of(cfg).name
+    return f"runs/{cfg.env}-k{cfg.k}-{stamp}" if name == "he" else f"runs/{name}-{cfg.env}-{stamp}"
 
 
 def prepare_run_dir(path: str, field: str = "run_dir") -> Path:

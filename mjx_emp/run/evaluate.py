@@ -33,6 +33,15 @@ def phase1_figures(trainer, state, key, episodes: int) -> dict:
             "coverage_cells": coverage_cells(*paths), "volume_x_success": top["volume"] * top["success"]}
 
 
+def skill_figures(agent, state, key) -> dict:
+    """A flat skill learner's figures: METRA's coverage (:data:`COVERAGE_SKILLS` greedy skills
+    from the initial state) and, for DIAYN and HIDIO, the posterior's mean standard deviation."""
+    paths = agent.skill_paths(state, jax.random.fold_in(key, 0), COVERAGE_SKILLS)
+    return {"epoch": int(state.epoch), "env_steps": float(state.env_steps.value()), "algorithm": agent.method,
+            "coverage_cells": coverage_cells(*paths),
+            "posterior_std": agent.posterior_std(state, jax.random.fold_in(key, 1))}
+
+
 def phase2_figures(trainer, epoch: int, state, key, episodes: int) -> dict:
     """The paper's phase-2 figure of a phase-2 state: its task and the greedy policy's mean
     minimum distance to goal and success on at least ``episodes`` goals from the region."""

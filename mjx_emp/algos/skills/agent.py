@@ -1,0 +1,398 @@
+"""The agent of the flat skill learners: DIAYN, HIDIO, DADS and METRA share all but their objective.
+
+An epoch is ``iterations`` rounds of: every environment takes ``collect_steps`` steps
+with the stochastic SAC policy (skills held for ``n`` actions, episodes from the initial
+state), the valid transitions go to one replay ring, then ``grad_steps`` times: a
+minibatch trains the method's model (:mod:`mjx_emp.algos.skills.objectives`), the updated
+model rewards the minibatch, and SAC takes a step on that reward. The discount is never
+cut: an episode ends on a time limit, not a terminal state (METRA's ``turn_off_dones``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+from flax import struct
+
+from mjx_emp.algos.skills import objectives as obj
+from mjx_emp.algos.skills.config import (
+    DadsConfig,
+    DiaynConfig,
+    HidioConfig,
+    MetraConfig,
+    SkillConfig,
+    check_skill_config,
+)
+from mjx_emp.counters import StepCounter
+from mjx_emp.envs.env import Env, EnvState, make_env
+from mjx_emp.learners.common import all_finite
+from mjx_emp.learners.sac import SAC, SACBatch, SACLearner
+from mjx_emp.metrics import epoch_header
+from mjx_emp.nets import MLP
+from mjx_emp.replay import ReplayBuffer, flatten_rows, replay_init, replay_insert, replay_sample
+from mjx_emp.rollout.flat import FlatState, flat_init, flat_rollout
+from mjx_emp.tracing import count_trace
+
+SKILL_EPOCH_TRACE = "skills.train_epoch"
+"""Name under which :mod:`mjx_emp.tracing` counts traces (compiles) of a flat learner's epoch."""
+Params = Any
+
+
+@struct.dataclass
+class SkillTransition:
+    """One stored step: where its episode began, the step itself, and the skill it served."""
+
+    s0: jax.Array
+    obs: jax.Array
+    skill: jax.Array
+    action: jax.Array
+    next_obs: jax.Array
+
+
+@struct.dataclass
+class SkillModel:
+    """The method's own model and its Adam state; ``log_lam`` and ``lam_opt`` are METRA's
+    dual variable (kept, unused, by the others so that every method has one state shape)."""
+
+    params: Params
+    opt: optax.OptState
+    log_lam: jax.Array
+    lam_opt: optax.OptState
+
+
+@struct.dataclass
+class SkillState:
+    """Everything a flat skill learner carries between epochs."""
+
+    sac: SACLearner
+    model: SkillModel
+    replay: ReplayBuffer
+    rollout: FlatState
+    key: jax.Array
+    epoch: jax.Array
+    env_steps: StepCounter
+
+
+@struct.dataclass
+class IterationStats:
+    """Per iteration of an epoch (stacked [iterations]); NaN where nothing was learnt or ended."""
+
+    env_steps: jax.Array
+    learned: jax.Array
+    sac: jax.Array
+    model_loss: jax.Array
+    reward: jax.Array
+    posterior_std: jax.Array
+    dual_lambda: jax.Array
+    constraint: jax.Array
+    episodes: jax.Array
+    displacement: jax.Array
+    flip_resets: jax.Array
+
+
+METHOD_NAMES = {DiaynConfig: "diayn", HidioConfig: "hidio", DadsConfig: "dads", MetraConfig: "metra"}
+
+
+@dataclasses.dataclass(frozen=True)
+class SkillAgent:
+    """Static side of one flat skill learner's config; hashes by the config (a jit argument)."""
+
+    cfg: SkillConfig
+    env: Env = dataclasses.field(init=False, compare=False, repr=False)
+
+    def __post_init__(self):
+        if type(self.cfg) not in METHOD_NAMES:
+            raise TypeError(f"cfg: a {type(self.cfg).__name__}; expected one of {[c.__name__ for c in METHOD_NAMES]}")
+        check_skill_config(self.cfg)
+        object.__setattr__(self, "env", make_env(self.cfg.env))
+
+    @property
+    def method(self) -> str:
+        return METHOD_NAMES[type(self.cfg)]
+
+    # ---- networks -------------------------------------------------------------------
+    @functools.cached_property
+    def sac(self) -> SAC:
+        c = self.cfg
+        return SAC(hidden=tuple(c.hidden), action_size=self.env.action_size, actor_lr=c.actor_lr,
+                   critic_lr=c.critic_lr, alpha_lr=c.alpha_lr, init_alpha=c.init_alpha, tau=c.tau,
+                   target_entropy=-c.target_entropy_scale * self.env.action_size)
+
+    @property
+    def descriptor_size(self) -> int:
+        return self.env.feature_size + self.env.goal_size
+
+    @functools.cached_property
+    def model_net(self):
+        """DIAYN/HIDIO: posterior q(z|...); DADS: mean of the descriptor's change; METRA: phi."""
+        hidden, d = tuple(self.cfg.hidden), self.cfg.skill_dim
+        if self.method in ("diayn", "hidio"):
+            return obj.GaussianHead(hidden, d)
+        return MLP(hidden, self.descriptor_size if self.method == "dads" else d)
+
+    def model_input(self, batch: SkillTransition) -> jax.Array:
+        """What the model sees of a minibatch (at the state it judges)."""
+        after = obj.descriptor(self.env, batch.next_obs, batch.s0)
+        if self.method == "diayn":
+            return after
+        if self.method == "hidio":
+            return jnp.concatenate([after, batch.action], axis=-1)
+        before = obj.descriptor(self.env, batch.obs, batch.s0)
+        return before if self.method == "metra" else jnp.concatenate([before, batch.skill], axis=-1)
+
+    def policy_input(self, obs: jax.Array, s0: jax.Array, skill: jax.Array) -> jax.Array:
+        """pi's and Q's input: the state's descriptor and the skill."""
+        return jnp.concatenate([obj.descriptor(self.env, obs, s0), skill], axis=-1)
+
+    def sample_skill(self, key: jax.Array, shape: tuple[int, ...] = ()) -> jax.Array:
+        """z from the prior: uniform on [-1, 1]^d, or for METRA a direction on the unit sphere."""
+        d = self.cfg.skill_dim
+        if self.method == "metra":
+            z = jax.random.normal(key, shape + (d,))
+            return z / jnp.linalg.norm(z, axis=-1, keepdims=True)
+        return jax.random.uniform(key, shape + (d,), minval=-1.0, maxval=1.0)
+
+    def start(self, _: Any, key: jax.Array) -> tuple[EnvState, jax.Array]:
+        """A new episode: the initial state and a skill from the prior."""
+        env_key, skill_key = jax.random.split(key)
+        return self.env.reset(env_key), self.sample_skill(skill_key)
+
+    def explore(self, actor: Params, obs, s0, skill, key) -> jax.Array:
+        """The stochastic SAC policy (training collection)."""
+        return self.sac.sample(actor, self.policy_input(obs, s0, skill), key)[0]
+
+    def greedy(self, actor: Params, obs, s0, skill, key) -> jax.Array:
+        """The deterministic policy tanh(mean) (evaluation)."""
+        del key
+        return self.sac.greedy(actor, self.policy_input(obs, s0, skill))
+
+    # ---- state ----------------------------------------------------------------------
+    @functools.cached_property
+    def initial_obs(self) -> np.ndarray:
+        """Observation of the initial state (a constant under jit)."""
+        with jax.ensure_compile_time_eval():
+            return np.asarray(self.env.observe(self.env.reset(jax.random.key(0))))
+
+    def example_transition(self) -> SkillTransition:
+        obs = jnp.asarray(self.initial_obs)
+        return SkillTransition(s0=obs, obs=obs, skill=jnp.zeros(self.cfg.skill_dim),
+                               action=jnp.zeros(self.env.action_size), next_obs=obs)
+
+    def init(self, key: jax.Array | None = None) -> SkillState:
+        """Fresh networks, an empty replay, every environment at the start of an episode."""
+        return _jit_init(self, jax.random.key(self.cfg.seed) if key is None else key)
+
+    def _init(self, key: jax.Array) -> SkillState:
+        cfg = self.cfg
+        sac_key, model_key, rollout_key, key = jax.random.split(key, 4)
+        example = self.example_transition()
+        sac = self.sac.init(sac_key, self.policy_input(example.obs, example.s0, example.skill))
+        params = self.model_net.init(model_key, self.model_input(example))
+        log_lam = jnp.log(jnp.asarray(getattr(cfg, "dual_lam", 1.0), jnp.float32))
+        model = SkillModel(params=params, opt=self.model_tx.init(params), log_lam=log_lam,
+                           lam_opt=self.model_tx.init(log_lam))
+        return SkillState(
+            sac=sac, model=model, replay=replay_init(example, cfg.replay_capacity),
+            rollout=flat_init(self.env, self.start, None, rollout_key, cfg.num_envs),
+            key=key, epoch=jnp.zeros((), jnp.int32), env_steps=StepCounter.zero(),
+        )
+
+    @property
+    def model_tx(self) -> optax.GradientTransformation:
+        return optax.adam(self.cfg.model_lr)
+
+    # ---- the objectives -------------------------------------------------------------
+    def model_step(self, model: SkillModel, batch: SkillTransition, key: jax.Array):
+        """Train the method's model on ``batch``, then reward ``batch`` with the new model.
+
+        Returns (model, reward [B], [model loss, posterior std, lambda, constraint]).
+        """
+        x, d = self.model_input(batch), self.cfg.skill_dim
+        nan = jnp.float32(jnp.nan)
+
+        if self.method in ("diayn", "hidio"):
+            def log_q(params):
+                mean, log_std = self.model_net.apply(params, x)
+                return obj.diagonal_gaussian_log_prob(batch.skill, mean, log_std), log_std
+
+            def loss(params):
+                return -log_q(params)[0].mean()
+        elif self.method == "dads":
+            change = obj.descriptor(self.env, batch.next_obs, batch.s0) - obj.descriptor(self.env, batch.obs, batch.s0)
+
+            def loss(params):
+                return -obj.unit_gaussian_log_prob(change, self.model_net.apply(params, x)).mean()
+        else:
+            phi_inputs = (x, obj.descriptor(self.env, batch.next_obs, batch.s0))
+
+            def loss(params):
+                phi_obs, phi_next = (self.model_net.apply(params, y) for y in phi_inputs)
+                return obj.metra_phi_loss(phi_obs, phi_next, batch.skill, jnp.exp(model.log_lam), self.cfg.dual_slack)
+
+        value, grad = jax.value_and_grad(loss)(model.params)
+        updates, opt = self.model_tx.update(grad, model.opt, model.params)
+        params = optax.apply_updates(model.params, updates)
+        model = model.replace(params=params, opt=opt)
+
+        if self.method in ("diayn", "hidio"):
+            log_q_new, log_std = log_q(params)
+            reward = obj.posterior_reward(log_q_new, d)
+            return model, reward, jnp.stack([value, jnp.exp(log_std).mean(), nan, nan])
+        if self.method == "dads":
+            prior = self.sample_skill(key, (self.cfg.prior_samples, batch.skill.shape[0]))
+            state_part = x[..., : -d]
+
+            def log_q_with(skill):
+                mean = self.model_net.apply(params, jnp.concatenate([state_part, skill], axis=-1))
+                return obj.unit_gaussian_log_prob(change, mean)
+
+            reward = obj.dads_reward(log_q_with(batch.skill), jax.vmap(log_q_with)(prior))
+            return model, reward, jnp.stack([value, nan, nan, nan])
+        phi_obs, phi_next = (self.model_net.apply(params, y) for y in phi_inputs)
+        constraint = obj.metra_constraint(phi_obs, phi_next, self.cfg.dual_slack)
+        lam_value, lam_grad = jax.value_and_grad(obj.metra_dual_loss)(model.log_lam, constraint)
+        del lam_value
+        lam_updates, lam_opt = self.model_tx.update(lam_grad, model.lam_opt, model.log_lam)
+        model = model.replace(log_lam=optax.apply_updates(model.log_lam, lam_updates), lam_opt=lam_opt)
+        reward = obj.metra_reward(phi_obs, phi_next, batch.skill)
+        return model, reward, jnp.stack([value, nan, jnp.exp(model.log_lam), constraint.mean()])
+
+    def learn_step(self, carry: tuple[SACLearner, SkillModel], replay: ReplayBuffer, key: jax.Array):
+        """One gradient step: the model, then SAC on the model's reward."""
+        sac, model = carry
+        sample_key, model_key, sac_key = jax.random.split(key, 3)
+        batch = replay_sample(replay, sample_key, self.cfg.batch_size)
+        model, reward, model_info = self.model_step(model, batch, model_key)
+        sac_batch = SACBatch(
+            x=self.policy_input(batch.obs, batch.s0, batch.skill), action=batch.action,
+            reward=jax.lax.stop_gradient(reward),
+            next_x=self.policy_input(batch.next_obs, batch.s0, batch.skill),
+            discount=jnp.full(reward.shape, self.cfg.gamma),
+        )
+        sac, sac_info = self.sac.step(sac, sac_batch, sac_key)
+        return (sac, model), (sac_info, model_info, reward.mean())
+
+    # ---- the epoch ------------------------------------------------------------------
+    def _iteration(self, state: SkillState, _) -> tuple[SkillState, IterationStats]:
+        cfg, env = self.cfg, self.env
+        key, learn_key = jax.random.split(state.key)
+        flips_before = state.rollout.env.flip_resets.sum()
+        rollout, steps = flat_rollout(env, self.explore, state.sac.actor, self.start, None,
+                                      state.rollout, cfg.collect_steps, cfg.n)
+        rows = flatten_rows(SkillTransition(s0=steps.s0, obs=steps.obs, skill=steps.skill, action=steps.action,
+                                            next_obs=steps.next_obs))
+        replay = replay_insert(state.replay, rows, steps.valid.reshape(-1))
+        ended = steps.last & steps.valid
+        moved = jnp.linalg.norm(env.goal_of_obs(steps.next_obs) - env.goal_of_obs(steps.s0), axis=-1)
+
+        def learn(carry):
+            carry, (sac_info, model_info, reward) = jax.lax.scan(
+                lambda c, k: self.learn_step(c, replay, k), carry, jax.random.split(learn_key, cfg.grad_steps))
+            return carry, sac_info.mean(0), model_info.mean(0), reward.mean()
+
+        def wait(carry):
+            return carry, jnp.full(5, jnp.nan), jnp.full(4, jnp.nan), jnp.float32(jnp.nan)
+
+        learned = replay.size >= cfg.min_replay
+        (sac, model), sac_info, model_info, reward = jax.lax.cond(learned, learn, wait, (state.sac, state.model))
+        env_steps = jnp.int32(cfg.collect_steps * cfg.num_envs)
+        stats = IterationStats(
+            env_steps=env_steps, learned=learned, sac=sac_info, model_loss=model_info[0], reward=reward,
+            posterior_std=model_info[1], dual_lambda=model_info[2], constraint=model_info[3],
+            episodes=ended.sum(), displacement=jnp.where(ended, moved, 0.0).sum() / jnp.maximum(ended.sum(), 1),
+            flip_resets=rollout.env.flip_resets.sum() - flips_before,
+        )
+        state = state.replace(sac=sac, model=model, replay=replay, rollout=rollout, key=key,
+                              env_steps=state.env_steps.add(env_steps))
+        return state, stats
+
+    def _train_epoch(self, state: SkillState) -> tuple[SkillState, IterationStats]:
+        count_trace(SKILL_EPOCH_TRACE)
+        state, stats = jax.lax.scan(self._iteration, state, None, length=self.cfg.iterations)
+        return state.replace(epoch=state.epoch + 1), stats
+
+    def train_epoch(self, state: SkillState) -> tuple[SkillState, IterationStats]:
+        """One epoch as one jitted call; returns per-iteration stats."""
+        return _jit_train_epoch(self, state)
+
+    # ---- evaluation and reports -----------------------------------------------------
+    def skill_paths(self, state: SkillState, key: jax.Array, skills: int = 48) -> tuple[np.ndarray, np.ndarray]:
+        """h(s) along ``skills`` greedy skills from the prior, each from the initial state.
+
+        Returns positions [n + 1, skills, d] (the start, then every action) and a mask that
+        is False after a reset cut a skill short (METRA's coverage count reads these).
+        """
+        positions, mask = _jit_skill_paths(self, state, key, skills)
+        return np.asarray(positions), np.asarray(mask)
+
+    def _skill_paths(self, state: SkillState, key: jax.Array, skills: int):
+        rollout = flat_init(self.env, self.start, None, key, skills)
+        _, steps = flat_rollout(self.env, self.greedy, state.sac.actor, self.start, None, rollout,
+                                self.cfg.n, self.cfg.n)
+        alive = jnp.cumsum(steps.cut, axis=0) == 0
+        start = self.env.goal_of_obs(jnp.asarray(self.initial_obs))
+        positions = jnp.concatenate([jnp.broadcast_to(start, (1, skills, start.shape[-1])),
+                                     self.env.goal_of_obs(steps.next_obs)])
+        return positions, jnp.concatenate([jnp.ones((1, skills), bool), alive])
+
+    def posterior_std(self, state: SkillState, key: jax.Array, rows: int = 4096) -> float | None:
+        """DIAYN and HIDIO: the mean standard deviation of q(z | ...) over ``rows`` replayed
+        transitions (Levy et al.'s diagnostic: it stays large when skills overlap); None for
+        the other methods or an empty replay."""
+        if self.method not in ("diayn", "hidio") or int(state.replay.size) == 0:
+            return None
+        batch = replay_sample(state.replay, key, rows)
+        _, log_std = self.model_net.apply(state.model.params, self.model_input(batch))
+        return float(jnp.exp(log_std).mean())
+
+    def metrics(self, state: SkillState, stats: IterationStats, seconds: float) -> dict[str, Any]:
+        """One JSON-ready line of per-epoch metrics."""
+        s = jax.tree.map(np.asarray, stats)
+
+        def mean(values) -> float | None:
+            values = np.asarray(values)[np.isfinite(values)]
+            return float(values.mean()) if values.size else None
+
+        header = epoch_header(state, float(s.env_steps.sum()), seconds)
+        return {
+            **header, "algorithm": self.method, "learned_iterations": int(s.learned.sum()),
+            "critic_loss": mean(s.sac[:, 0]), "actor_loss": mean(s.sac[:, 1]), "alpha": mean(s.sac[:, 3]),
+            "entropy": mean(s.sac[:, 4]), "model_loss": mean(s.model_loss), "reward": mean(s.reward),
+            "posterior_std": mean(s.posterior_std), "dual_lambda": mean(s.dual_lambda),
+            "constraint": mean(s.constraint), "episodes": int(s.episodes.sum()),
+            "displacement": mean(np.where(s.episodes > 0, s.displacement, np.nan)),
+            "flip_resets": int(s.flip_resets.sum()),
+        }
+
+    def divergence(self, state: SkillState, stats: IterationStats) -> str | None:
+        """Why this epoch must not be kept (a non-finite loss or parameter), or None."""
+        s = jax.tree.map(np.asarray, stats)
+        learned = s.learned.astype(bool)
+        for name, values in (("critic loss", s.sac[:, 0]), ("actor loss", s.sac[:, 1]), ("model loss", s.model_loss)):
+            if not np.isfinite(values[learned]).all():
+                return f"the {self.method} {name} is not finite"
+        if not bool(all_finite((state.sac, state.model))):
+            return "a network parameter or optimizer state is not finite"
+        return None
+
+    def describe(self, metrics: dict) -> str:
+        """A short human-readable summary of an epoch's metrics."""
+        def show(name):
+            value = metrics[name]
+            return "-" if value is None else f"{value:.3g}"
+
+        extra = {"diayn": "posterior_std", "hidio": "posterior_std", "metra": "dual_lambda"}.get(self.method)
+        tail = f"  {extra.replace('_', ' ')} {show(extra)}" if extra else ""
+        return (f"{metrics['env_steps']:.3g} env steps  {metrics['env_steps_per_s']:.3g} steps/s  "
+                f"reward {show('reward')}  displacement {show('displacement')}  alpha {show('alpha')}{tail}")
+
+
+_jit_init = jax.jit(SkillAgent._init, static_argnums=0)
+_jit_train_epoch = jax.jit(SkillAgent._train_epoch, static_argnums=0, donate_argnums=1)
+_jit_skill_paths = jax.jit(SkillAgent._skill_paths, static_argnums=(0, 3))
