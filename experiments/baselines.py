@@ -1,0 +1,104 @@
+"""Hierarchical Empowerment against the skill-learning baselines, one JSON row per (preset, seed).
+
+For every preset (HE's or a baseline's, e.g. ``point-mass-k1`` and ``metra-point-mass``) and
+seed, trains the preset (or resumes BASE/<preset>-s<seed>; a finished run is only
+evaluated), then evaluates its newest checkpoint the same way for every method: METRA's
+coverage (1 m cells of goal space visited by 48 greedy skills from the initial state) and,
+for DIAYN and HIDIO, the posterior's mean standard deviation. Rows carry ``algo``,
+``env``, ``preset``, ``seed``, ``env_steps``, ``wall_s`` (training time summed from the
+run's metrics, compile included), ``coverage_cells``, ``posterior_std`` and
+``phase2_min_distance`` (None until downstream goal reaching runs over the baselines'
+skills). ``python experiments/baselines.py --presets point-mass-k1 metra-point-mass
+--seeds 0 1 2 3``; rows are merged into ``--out``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import jax
+import tyro
+
+from mjx_emp.algos.registry import algorithm_of, all_presets
+from mjx_emp.commands import ResumeExperiment, TrainExperiment
+from mjx_emp.metrics import coverage_cells, mean_and_stderr
+from mjx_emp.run import directory as run
+from mjx_emp.run.evaluate import COVERAGE_SKILLS, skill_figures
+
+ALGOS = ("he", "diayn", "hidio", "dads", "metra")
+
+
+@dataclasses.dataclass
+class Args:
+    """Presets x seeds, trained and evaluated alike."""
+
+    presets: tuple[str, ...] = ("point-mass-k1", "diayn-point-mass", "hidio-point-mass", "dads-point-mass",
+                                "metra-point-mass")
+    seeds: tuple[int, ...] = (0, 1, 2, 3)
+    epochs: int | None = None
+    """Override the presets' epoch counts; None keeps them."""
+    base: str = "runs/baselines"
+    out: str = "benchmarks/results/baselines_cpu.json"
+
+
+def train_or_resume(base: Path, preset: str, seed: int, epochs: int | None) -> Path:
+    """The run directory of (preset, seed), trained to its epoch count."""
+    presets = all_presets()
+    if preset not in presets:
+        raise SystemExit(f"presets: {preset!r} is unknown; allowed values: {sorted(presets)}")
+    config = dataclasses.replace(presets[preset][1], seed=seed)
+    if epochs is not None:
+        config = dataclasses.replace(config, epochs=epochs)
+    run_dir = base / f"{preset}-s{seed}"
+    if (run_dir / run.CONFIG_FILE).exists():
+        run.resume(ResumeExperiment(resume=str(run_dir), epochs=config.epochs))
+    else:
+        run.train(TrainExperiment(config=config, run_dir=str(run_dir)))
+    return run_dir
+
+
+def evaluate_run(run_dir: Path, preset: str, seed: int) -> dict:
+    """One row: coverage for any method, the posterior's std for DIAYN and HIDIO."""
+    agent, epoch, state = run.load_run(run_dir)
+    algo = algorithm_of(agent.cfg).name
+    key = jax.random.key(1000 + seed)
+    if algo == "he":
+        figures = {"coverage_cells": coverage_cells(*agent.skill_paths(state, key, COVERAGE_SKILLS)),
+                   "posterior_std": None}
+    else:
+        figures = skill_figures(agent, state, key)
+    metrics = [json.loads(line) for line in (run_dir / run.METRICS_FILE).read_text().splitlines() if line]
+    return {
+        "algo": algo, "env": agent.cfg.env, "preset": preset, "seed": seed, "run_dir": str(run_dir), "epoch": epoch,
+        "env_steps": float(state.env_steps.value()), "wall_s": sum(m["seconds"] for m in metrics if m["epoch"] <= epoch),
+        "coverage_cells": figures["coverage_cells"], "posterior_std": figures["posterior_std"],
+        "phase2_min_distance": None,
+    }
+
+
+def main(args: Args) -> None:
+    out = Path(args.out)
+    rows = json.loads(out.read_text())["rows"] if out.exists() else []
+    for preset in args.presets:
+        for seed in args.seeds:
+            row = evaluate_run(train_or_resume(Path(args.base), preset, seed, args.epochs), preset, seed)
+            rows = [r for r in rows if (r["preset"], r["seed"]) != (preset, seed)] + [row]
+            print(json.dumps(row), flush=True)
+            out.parent.mkdir(parents=True, exist_ok=True)
+            out.write_text(json.dumps({"backend": jax.default_backend(), "rows": rows}, indent=1))
+    print("| preset | seeds | env steps | wall s (mean) | coverage cells, mean ± std | posterior std |")
+    print("|---|---|---|---|---|---|")
+    for preset in dict.fromkeys(r["preset"] for r in rows):
+        mine = [r for r in rows if r["preset"] == preset]
+        cells = mean_and_stderr([r["coverage_cells"] for r in mine])
+        stds = [r["posterior_std"] for r in mine if r["posterior_std"] is not None]
+        std = f"{mean_and_stderr(stds)['mean']:.3g}" if stds else "-"
+        print(f"| {preset} | {len(mine)} | {mine[0]['env_steps']:.3g} | {sum(r['wall_s'] for r in mine) / len(mine):.0f} "
+              f"| {cells['mean']:.3g} ± {cells['std']:.2g} | {std} |")
+    print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+    main(tyro.cli(Args))
