@@ -25,7 +25,9 @@ class TrainConfig:
     """Domain: point_mass, ant_field, ant_cage, half_cheetah_field or half_cheetah_cage."""
     heading_frame: bool = False
     """Networks see the state and goal offset in the torso's heading frame (Ant domains
-    only; see Env.heading_frame). False is the paper's world-frame input."""
+    only; see Env.heading_frame). False is the paper's world-frame input, and what every
+    preset uses: on ant-field-cpu-k1 seed 0 heading-frame inputs gave a 4.5 m^2 box at 55 %
+    against 10.6 m^2 at 72 % (docs/learning-on-robots.md)."""
     n: tuple[int, ...] = (10,)
     """Maximum number of actions per level (the paper's n), bottom level first."""
     sigma_gc: tuple[float, ...] = (0.2,)
