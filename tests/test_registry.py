@@ -6,9 +6,8 @@ import json
 import pytest
 from tiny import TINY
 
-from mjx_emp.algos.he.config import TrainConfig
 from mjx_emp.algos.he.presets import PRESETS
-from mjx_emp.algos.registry import ALGORITHMS, all_presets, config_from_json, config_to_json, make_agent
+from mjx_emp.algos.registry import ALGORITHMS, algorithm_of, all_presets, config_from_json, config_to_json, make_agent
 from mjx_emp.errors import ConfigError
 
 
@@ -24,14 +23,21 @@ def test_a_config_json_without_an_algorithm_is_an_older_he_run():
 
 
 def test_an_unknown_algorithm_is_refused_naming_the_key_and_the_choices():
-    with pytest.raises(ConfigError, match=r"algorithm: 'nope' is unknown; allowed values: \['he'\]"):
+    allowed = r"\['dads', 'diayn', 'gcrl', 'he', 'hidio', 'metra'\]"
+    with pytest.raises(ConfigError, match=r"algorithm: 'nope' is unknown; allowed values: " + allowed):
         config_from_json({"algorithm": "nope", **dataclasses.asdict(TINY)})
 
 
 def test_presets_of_every_algorithm_are_listed_once():
     presets = all_presets()
-    assert set(PRESETS) <= set(presets) and set(ALGORITHMS) == {"he"}
-    assert all(isinstance(cfg, TrainConfig) for _, cfg in presets.values())
+    assert set(PRESETS) <= set(presets)
+    assert set(ALGORITHMS) == {"he", "gcrl", "diayn", "hidio", "dads", "metra"}
+    for name, (_, cfg) in presets.items():
+        algorithm = algorithm_of(cfg)
+        assert type(cfg) is algorithm.config_type and name in algorithm.presets
+        assert name.startswith(f"{algorithm.name}-") or algorithm.name == "he"
+        algorithm.check(cfg)  # every preset is a valid config
+        assert config_from_json(json.loads(json.dumps(config_to_json(cfg)))) == cfg
 
 
 def test_make_agent_checks_the_config_before_building():

@@ -14,8 +14,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from test_checkpoint import assert_bitwise_equal, kill_when
-from tiny import mjx_emp, run_cli
+from tiny import TINY, mjx_emp, run_cli
 
+from mjx_emp.algos.he.agent import Trainer
+from mjx_emp.algos.he.config import GcrlConfig
 from mjx_emp.algos.skills import objectives as obj
 from mjx_emp.algos.skills.agent import SkillAgent
 from mjx_emp.algos.skills.config import DadsConfig, DiaynConfig, HidioConfig, MetraConfig
@@ -32,6 +34,8 @@ METHODS = {"diayn": DiaynConfig, "hidio": HidioConfig, "dads": DadsConfig, "metr
 
 
 def tiny(method: str):
+    if method == "gcrl":
+        return GcrlConfig(**{**dataclasses.asdict(TINY), "epochs": 3, "gs_iterations": 0, "goal_half_width": (0.5, 1.0)})
     extra = {"prior_samples": 4} if method == "dads" else {}
     return METHODS[method](**TINY_SKILLS, **extra)
 
@@ -130,7 +134,7 @@ def test_flat_rollout_holds_a_skill_for_n_actions_then_restarts():
 
 # ---- agents through the run layer -----------------------------------------------------------
 
-@pytest.mark.parametrize("method", sorted(METHODS))
+@pytest.mark.parametrize("method", sorted(METHODS) + ["gcrl"])
 def test_each_method_trains_stops_and_resumes_bitwise(method, tmp_path):
     cfg = tiny(method)
     straight = run.train(TrainExperiment(config=cfg, run_dir=str(tmp_path / "straight")))
@@ -138,7 +142,10 @@ def test_each_method_trains_stops_and_resumes_bitwise(method, tmp_path):
     resumed = run.resume(ResumeExperiment(resume=str(tmp_path / "stopped"), epochs=3))
     assert_bitwise_equal(resumed, straight)
     lines = [json.loads(line) for line in (tmp_path / "stopped" / "metrics.jsonl").read_text().splitlines()]
-    assert [m["epoch"] for m in lines] == [1, 2, 3] and lines[-1]["algorithm"] == method
+    assert [m["epoch"] for m in lines] == [1, 2, 3]
+    if method == "gcrl":
+        return
+    assert lines[-1]["algorithm"] == method
     assert lines[-1]["learned_iterations"] == 2 and lines[-1]["critic_loss"] is not None
     if method in ("diayn", "hidio"):
         assert 0 < lines[-1]["posterior_std"] < math.exp(2.0)
@@ -171,6 +178,20 @@ def test_eval_reports_coverage_and_posterior_std(tmp_path):
     assert 1 <= report["runs"][0]["coverage_cells"] <= 48 * (cfg.n + 1)
     assert 0 < report["posterior_std"]["mean"] < math.exp(2.0)
     assert "coverage" in result.stdout
+
+
+def test_gcrl_goal_spaces_stay_the_hand_set_boxes_while_the_policies_learn():
+    trainer = Trainer(tiny("gcrl"))
+    state = trainer.init()
+    actors = jax.tree.leaves(state.policies[0].actor)
+    for _ in range(2):
+        state, _ = trainer.train_epoch(state)
+    for box, width in zip(trainer.goal_spaces(state), (0.5, 1.0)):
+        np.testing.assert_allclose(box["half_width"], [width, width], rtol=1e-6)
+        np.testing.assert_allclose(box["shift"], [0.0, 0.0], atol=1e-7)
+    assert any(not np.array_equal(a, b) for a, b in zip(actors, jax.tree.leaves(state.policies[0].actor)))
+    with pytest.raises(ConfigError, match="gs_iterations: GCRL learns no goal space; must be 0, got 1"):
+        Trainer(dataclasses.replace(tiny("gcrl"), gs_iterations=1))
 
 
 def test_skill_paths_start_at_the_initial_state_and_move():

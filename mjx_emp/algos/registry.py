@@ -12,7 +12,8 @@ import dataclasses
 from collections.abc import Callable, Mapping
 from typing import Any, Protocol
 
-from mjx_emp.algos.he.config import TrainConfig, check_train_config
+from mjx_emp.algos.he.config import GcrlConfig, TrainConfig, check_gcrl_config, check_train_config
+from mjx_emp.algos.he.presets import GCRL_PRESETS
 from mjx_emp.algos.he.presets import PRESETS as HE_PRESETS
 from mjx_emp.algos.skills.config import DadsConfig, DiaynConfig, HidioConfig, MetraConfig, check_skill_config
 from mjx_emp.algos.skills.presets import PRESETS as SKILL_PRESETS
@@ -78,6 +79,7 @@ def _skill_algorithm(name: str, config_type: type) -> Algorithm:
 
 ALGORITHMS: dict[str, Algorithm] = {
     "he": Algorithm("he", TrainConfig, check_train_config, HE_PRESETS, _he_agent),
+    "gcrl": Algorithm("gcrl", GcrlConfig, check_gcrl_config, GCRL_PRESETS, _he_agent),
     "diayn": _skill_algorithm("diayn", DiaynConfig),
     "hidio": _skill_algorithm("hidio", HidioConfig),
     "dads": _skill_algorithm("dads", DadsConfig),

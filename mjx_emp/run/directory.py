@@ -38,7 +38,7 @@ def default_run_dir(cfg) -> str:
     for the others."""
     stamp = time.strftime('%Y%m%d-%H%M%S')
     name = algorithm_of(cfg).name
-    return f"runs/{cfg.env}-k{cfg.k}-{stamp}" if name == "he" else f"runs/{name}-{cfg.env}-{stamp}"
+    return f"runs/{cfg.env}-k{cfg.k}-{stamp}" if name == "he" else f"runs/{name}-{cfg.env}-k{cfg.k}-{stamp}"
 
 
 def prepare_run_dir(path: str, field: str = "run_dir") -> Path:

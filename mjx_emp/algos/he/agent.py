@@ -27,7 +27,7 @@ import optax
 from flax import struct
 
 from mjx_emp import gce
-from mjx_emp.algos.he.config import TrainConfig, check_train_config
+from mjx_emp.algos.he.config import GcrlConfig, TrainConfig, check_gcrl_config, check_train_config
 from mjx_emp.counters import StepCounter
 from mjx_emp.envs.env import Env, make_env
 from mjx_emp.learners.common import actor_critic_step, all_finite
@@ -138,7 +138,7 @@ class Trainer:
     hierarchy: Hierarchy = dataclasses.field(init=False, compare=False, repr=False)
 
     def __post_init__(self):
-        check_train_config(self.cfg)
+        (check_gcrl_config if isinstance(self.cfg, GcrlConfig) else check_train_config)(self.cfg)
         env = make_env(self.cfg.env, self.cfg.heading_frame)
         object.__setattr__(self, "env", env)
         policies = tuple(
@@ -168,7 +168,12 @@ class Trainer:
         return GoalSpaceActor(tuple(c.hidden), self.env.goal_size, c.init_half_width[level], c.max_half_width[level])
 
     def goal_space_action(self, level: int, params: Params, obs: jax.Array) -> jax.Array:
-        """mu_level(s0): the (shift, log half-width) of the level's goal space at ``obs``."""
+        """mu_level(s0): the (shift, log half-width) of the level's goal space at ``obs``
+        (for GCRL the fixed box, whatever the params)."""
+        if isinstance(self.cfg, GcrlConfig):
+            d = self.env.goal_size
+            fixed = jnp.concatenate([jnp.zeros(d), jnp.full(d, math.log(self.cfg.goal_half_width[level]))])
+            return jnp.broadcast_to(fixed, obs.shape[:-1] + (2 * d,))
         return self.gs_actor_net(level).apply(params, self.env.features(obs))
 
     def learned_box(self, level: int):

@@ -148,6 +148,28 @@ def check_train_config(cfg: TrainConfig) -> None:
 
 
 @dataclasses.dataclass(frozen=True)
+class GcrlConfig(TrainConfig):
+    """Goal-conditioned RL with a hand-set goal space (Choi et al. 2021, as Levy et al. compare
+    against it): Hierarchical Empowerment's goal-conditioned levels, but every level's goal
+    space is a fixed box of ``goal_half_width`` around h(s), never learnt (no goal-space
+    iterations)."""
+
+    goal_half_width: tuple[float, ...] = (1.0,)
+    """Half-width of each level's fixed goal box (one entry per level)."""
+    gs_iterations: int = 0
+    """Always 0: nothing learns the goal space."""
+
+
+def check_gcrl_config(cfg: GcrlConfig) -> None:
+    """HE's checks, plus one finite goal half-width > 0 per level and no goal-space iterations."""
+    if cfg.gs_iterations != 0:
+        raise ConfigError(f"gs_iterations: GCRL learns no goal space; must be 0, got {cfg.gs_iterations}")
+    if len(cfg.goal_half_width) != cfg.k or any(not 0 < w < float("inf") for w in cfg.goal_half_width):
+        raise ConfigError(f"goal_half_width: one finite entry > 0 per level (k={cfg.k}); got {cfg.goal_half_width}")
+    check_train_config(dataclasses.replace(cfg, gs_iterations=1))
+
+
+@dataclasses.dataclass(frozen=True)
 class Phase2Config:
     """Phase 2: a goal-conditioned policy over a trained agent's frozen top-level skills.
 
