@@ -114,6 +114,7 @@ def plot(exp: PlotExperiment) -> None:
     run_dir = Path(exp.run_dir)
     if not (run_dir / run.METRICS_FILE).exists():
         raise ConfigError(f"run_dir: {str(run_dir)!r} has no {run.METRICS_FILE}; is it a run directory?")
+    run.require_goal_spaces(run_dir, "plot")
     for path in plot_run(run_dir):
         print(path)
 
@@ -137,6 +138,7 @@ def render(exp: RenderExperiment) -> None:
         trainer, epoch, state = run.load_phase2(phase2_dir)
         recording = record_rollout(trainer.greedy_episodes(state), jax.random.key(exp.seed), exp.steps)
     else:
+        run.require_goal_spaces(Path(exp.run_dir), "render")
         trainer, epoch, state = run.load_run(Path(exp.run_dir))
         recording = record_rollout(trainer.skill_chain(state), jax.random.key(exp.seed), exp.steps)
     frames = render_frames(trainer.env, recording, exp.width, exp.height, exp.distance)
@@ -232,6 +234,7 @@ def with_phase2_preset(args: list[str]) -> list[str]:
     """
     if not args or args[0] in PHASE2_PRESETS or args[0].startswith("-"):
         return args
+    run.require_goal_spaces(Path(args[0]), "phase2")
     skills = run.read_run_config(Path(args[0]), "run_dir")
     preset = phase2_preset_for(skills)
     if preset is None:

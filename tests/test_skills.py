@@ -18,6 +18,7 @@ from tiny import TINY, mjx_emp, run_cli
 
 from mjx_emp.algos.he.agent import Trainer
 from mjx_emp.algos.he.config import GcrlConfig
+from mjx_emp.algos.registry import config_to_json
 from mjx_emp.algos.skills import objectives as obj
 from mjx_emp.algos.skills.agent import SkillAgent
 from mjx_emp.algos.skills.config import DadsConfig, DiaynConfig, HidioConfig, MetraConfig
@@ -217,3 +218,12 @@ def test_bad_skill_config_names_the_field(change, message):
     with pytest.raises(ConfigError) as err:
         SkillAgent(dataclasses.replace(tiny("metra"), **change))
     assert message in str(err.value)
+
+
+@pytest.mark.parametrize("command", ["plot", "render", "phase2"])
+def test_commands_that_need_goal_spaces_refuse_a_flat_learners_run(command, tmp_path):
+    (tmp_path / "config.json").write_text(json.dumps(config_to_json(tiny("metra"))))
+    (tmp_path / "metrics.jsonl").write_text("")
+    result = run_cli(command, str(tmp_path))
+    assert result.returncode == 2, result.stderr
+    assert f"is a metra run; `mjx-emp {command}` works on runs of ['he', 'gcrl']" in result.stderr

@@ -257,6 +257,18 @@ def resume(exp: ResumeExperiment):
     return _resume(exp, load_run)
 
 
+GOAL_SPACE_ALGORITHMS = ("he", "gcrl")
+"""Algorithms whose runs have goal spaces (what phase 2, plot and render build on today)."""
+
+
+def require_goal_spaces(run_dir: Path, command: str, field: str = "run_dir") -> None:
+    """Refuse, naming the run's algorithm, a command that needs goal spaces on a flat skill learner's run."""
+    name = algorithm_of(read_run_config(Path(run_dir), field)).name
+    if name not in GOAL_SPACE_ALGORITHMS:
+        raise ConfigError(f"{field}: {str(run_dir)!r} is a {name} run; `mjx-emp {command}` works on runs of "
+                          f"{list(GOAL_SPACE_ALGORITHMS)} (flat skill learners: `mjx-emp eval` reports their coverage)")
+
+
 def train_phase2(exp: Phase2Experiment):
     """Train phase 2 on a phase-1 run's skills in a new phase-2 directory; returns the final state."""
     check_phase2_config(exp.config)
@@ -265,6 +277,7 @@ def train_phase2(exp: Phase2Experiment):
         raise ConfigError("run_dir: give the phase-1 run directory, e.g. `mjx-emp phase2 runs/pm1`")
     from mjx_emp.downstream import Phase2Trainer
 
+    require_goal_spaces(Path(exp.run_dir), "phase2")
     requested = None if exp.config.phase1_epoch < 0 else exp.config.phase1_epoch
     skills, epoch, skills_state = load_run(Path(exp.run_dir), field="run_dir", epoch=requested)
     cfg = dataclasses.replace(exp.config, phase1_epoch=epoch)

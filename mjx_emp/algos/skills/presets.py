@@ -18,8 +18,19 @@ _POINT_MASS = dict(env="point_mass", skill_dim=2, n=10, epochs=200, num_envs=16,
                    grad_steps=25, batch_size=256, replay_capacity=100_000, min_replay=1_000, hidden=(256, 256))
 
 
+# The robots: skills of n = 20 actions (HE's ant-field-cpu-k1 and half-cheetah-cpu-k1 skill
+# length: 3.75 s on the Ant, 3 s on the Half Cheetah), 300 epochs of 3,200 environment steps
+# and 250 gradient steps each (0.96 M steps; HE's k=1 robot presets simulate 2.0-2.2 M).
+_ROBOTS = dict(skill_dim=2, n=20, epochs=300, num_envs=16, collect_steps=20, iterations=10, grad_steps=25,
+               batch_size=256, replay_capacity=300_000, min_replay=5_000, hidden=(256, 256))
+
+
 def _point_mass(config_type: type[SkillConfig]) -> SkillConfig:
     return config_type(**_POINT_MASS)
+
+
+def _robot(config_type: type[SkillConfig], env: str) -> SkillConfig:
+    return config_type(env=env, **_ROBOTS)
 
 
 PRESETS: dict[str, tuple[str, SkillConfig]] = {
@@ -28,4 +39,9 @@ PRESETS: dict[str, tuple[str, SkillConfig]] = {
     "dads-point-mass": ("DADS: skill dynamics q(s'|s,z), L = 100 prior skills", _point_mass(DadsConfig)),
     "metra-point-mass": ("METRA: phi under ||phi(s')-phi(s)|| <= 1, unit-length skills", _point_mass(MetraConfig)),
 }
+for _name, _type in (("diayn", DiaynConfig), ("hidio", HidioConfig), ("dads", DadsConfig), ("metra", MetraConfig)):
+    PRESETS[f"{_name}-ant-field-cpu"] = (f"{_name.upper()} on the paper's Ant, skills of 20 actions (CPU)",
+                                         _robot(_type, "ant_field"))
+    PRESETS[f"{_name}-half-cheetah-cpu"] = (f"{_name.upper()} on the paper's Half Cheetah, skills of 20 actions (CPU)",
+                                            _robot(_type, "half_cheetah_field"))
 """Name -> (description, config)."""
