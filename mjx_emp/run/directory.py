@@ -262,7 +262,10 @@ GOAL_SPACE_ALGORITHMS = ("he", "gcrl")
 
 
 def require_goal_spaces(run_dir: Path, command: str, field: str = "run_dir") -> None:
-    """Refuse, naming the run's algorithm, a command that needs goal spaces on a flat skill learner's run."""
+    """Refuse, naming the run's algorithm, a command that needs goal spaces on a flat skill learner's run
+    (a directory without config.json is left to the command, which says what it lacks)."""
+    if not (Path(run_dir) / CONFIG_FILE).exists():
+        return
     name = algorithm_of(read_run_config(Path(run_dir), field)).name
     if name not in GOAL_SPACE_ALGORITHMS:
         raise ConfigError(f"{field}: {str(run_dir)!r} is a {name} run; `mjx-emp {command}` works on runs of "
