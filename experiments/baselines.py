@@ -2,14 +2,15 @@
 
 For every preset (HE's or a baseline's, e.g. ``point-mass-k1`` and ``metra-point-mass``) and
 seed, trains the preset (or resumes BASE/<preset>-s<seed>; a finished run is only
-evaluated), then evaluates its newest checkpoint the same way for every method: METRA's
-coverage (1 m cells of goal space visited by 48 greedy skills from the initial state) and,
-for DIAYN and HIDIO, the posterior's mean standard deviation. Rows carry ``algo``,
-``env``, ``preset``, ``seed``, ``env_steps``, ``wall_s`` (training time summed from the
-run's metrics, compile included), ``coverage_cells``, ``posterior_std`` and
-``phase2_min_distance`` (None until downstream goal reaching runs over the baselines'
-skills). ``python experiments/baselines.py --presets point-mass-k1 metra-point-mass
---seeds 0 1 2 3``; rows are merged into ``--out``.
+evaluated), trains phase 2 on its skills with the domain's CPU task (``--phase2``, as
+`mjx-emp phase2 RUN_DIR` does), then evaluates both the same way for every method: METRA's
+coverage (1 m cells of goal space visited by 48 greedy skills from the initial state), for
+DIAYN and HIDIO the posterior's mean standard deviation, and phase 2's mean minimum
+distance to goal on 400 goals. Rows carry ``algo``, ``env``, ``preset``, ``seed``,
+``env_steps``, ``wall_s`` (phase-1 training time summed from the run's metrics, compile
+included), ``coverage_cells``, ``posterior_std``, ``phase2_min_distance`` and
+``phase2_success``. ``python experiments/baselines.py --presets point-mass-k1
+metra-point-mass --seeds 0 1 2 3``; rows are merged into ``--out``.
 """
 
 from __future__ import annotations
@@ -21,11 +22,12 @@ from pathlib import Path
 import jax
 import tyro
 
+from mjx_emp.algos.he.presets import PHASE2_PRESETS, phase2_preset_for
 from mjx_emp.algos.registry import algorithm_of, all_presets
-from mjx_emp.commands import ResumeExperiment, TrainExperiment
+from mjx_emp.commands import Phase2Experiment, ResumeExperiment, TrainExperiment
 from mjx_emp.metrics import coverage_cells, mean_and_stderr
 from mjx_emp.run import directory as run
-from mjx_emp.run.evaluate import COVERAGE_SKILLS, skill_figures
+from mjx_emp.run.evaluate import COVERAGE_SKILLS, phase2_figures, skill_figures
 
 ALGOS = ("he", "diayn", "hidio", "dads", "metra")
 
@@ -39,6 +41,8 @@ class Args:
     seeds: tuple[int, ...] = (0, 1, 2, 3)
     epochs: int | None = None
     """Override the presets' epoch counts; None keeps them."""
+    phase2: bool = True
+    """Also train phase 2 (the domain's CPU task, `mjx-emp phase2 RUN_DIR`) on every run's skills."""
     base: str = "runs/baselines"
     out: str = "benchmarks/results/baselines_cpu.json"
 
@@ -59,6 +63,16 @@ def train_or_resume(base: Path, preset: str, seed: int, epochs: int | None) -> P
     return run_dir
 
 
+def train_phase2(run_dir: Path) -> None:
+    """Phase 2 on the run's skills with its domain's preset (resumed if it is there)."""
+    phase2_dir = run_dir / run.PHASE2_SUBDIR
+    if (phase2_dir / run.CONFIG_FILE).exists():
+        run.resume_phase2(ResumeExperiment(resume=str(phase2_dir)))
+        return
+    preset = phase2_preset_for(run.read_run_config(run_dir, "run_dir"))
+    run.train_phase2(Phase2Experiment(run_dir=str(run_dir), config=PHASE2_PRESETS[preset][2]))
+
+
 def evaluate_run(run_dir: Path, preset: str, seed: int) -> dict:
     """One row: coverage for any method, the posterior's std for DIAYN and HIDIO."""
     agent, epoch, state = run.load_run(run_dir)
@@ -74,8 +88,17 @@ def evaluate_run(run_dir: Path, preset: str, seed: int) -> dict:
         "algo": algo, "env": agent.cfg.env, "preset": preset, "seed": seed, "run_dir": str(run_dir), "epoch": epoch,
         "env_steps": float(state.env_steps.value()), "wall_s": sum(m["seconds"] for m in metrics if m["epoch"] <= epoch),
         "coverage_cells": figures["coverage_cells"], "posterior_std": figures["posterior_std"],
-        "phase2_min_distance": None,
+        **phase2_of(run_dir, seed),
     }
+
+
+def phase2_of(run_dir: Path, seed: int, episodes: int = 400) -> dict:
+    """RUN_DIR/phase2's figures (trained with ``--phase2``), or None where it has none."""
+    phase2_dir = run_dir / run.PHASE2_SUBDIR
+    if not (phase2_dir / run.CONFIG_FILE).exists():
+        return {"phase2_min_distance": None, "phase2_success": None}
+    figures = phase2_figures(*run.load_phase2(phase2_dir), jax.random.key(1000 + seed), episodes)
+    return {"phase2_min_distance": figures["min_distance"], "phase2_success": figures["success"]}
 
 
 def main(args: Args) -> None:
@@ -83,20 +106,27 @@ def main(args: Args) -> None:
     rows = json.loads(out.read_text())["rows"] if out.exists() else []
     for preset in args.presets:
         for seed in args.seeds:
-            row = evaluate_run(train_or_resume(Path(args.base), preset, seed, args.epochs), preset, seed)
+            run_dir = train_or_resume(Path(args.base), preset, seed, args.epochs)
+            if args.phase2:
+                train_phase2(run_dir)
+            row = evaluate_run(run_dir, preset, seed)
             rows = [r for r in rows if (r["preset"], r["seed"]) != (preset, seed)] + [row]
             print(json.dumps(row), flush=True)
             out.parent.mkdir(parents=True, exist_ok=True)
             out.write_text(json.dumps({"backend": jax.default_backend(), "rows": rows}, indent=1))
-    print("| preset | seeds | env steps | wall s (mean) | coverage cells, mean ± std | posterior std |")
-    print("|---|---|---|---|---|---|")
+    print("| preset | seeds | env steps | wall s (mean) | coverage cells, mean ± std | posterior std | "
+          "phase-2 min distance, mean ± std |")
+    print("|---|---|---|---|---|---|---|")
     for preset in dict.fromkeys(r["preset"] for r in rows):
         mine = [r for r in rows if r["preset"] == preset]
         cells = mean_and_stderr([r["coverage_cells"] for r in mine])
         stds = [r["posterior_std"] for r in mine if r["posterior_std"] is not None]
         std = f"{mean_and_stderr(stds)['mean']:.3g}" if stds else "-"
+        distances = [r["phase2_min_distance"] for r in mine if r.get("phase2_min_distance") is not None]
+        p2 = mean_and_stderr(distances) if distances else None
+        p2_text = f"{p2['mean']:.3g} ± {p2['std']:.2g} ({len(distances)})" if p2 else "-"
         print(f"| {preset} | {len(mine)} | {mine[0]['env_steps']:.3g} | {sum(r['wall_s'] for r in mine) / len(mine):.0f} "
-              f"| {cells['mean']:.3g} ± {cells['std']:.2g} | {std} |")
+              f"| {cells['mean']:.3g} ± {cells['std']:.2g} | {std} | {p2_text} |")
     print(f"wrote {out}")
 
 

@@ -202,17 +202,25 @@ def evaluate(exp: EvalExperiment) -> dict:
 
 
 def evaluate_skills(exp: EvalExperiment, skill_figures) -> dict:
-    """``mjx-emp eval`` for flat skill learners: coverage and posterior std per run, aggregated."""
+    """``mjx-emp eval`` for flat skill learners: coverage and posterior std per run, and the
+    phase-2 figure where RUN_DIR/phase2 exists, aggregated."""
     import jax
 
-    from mjx_emp.metrics import mean_and_stderr
-    from mjx_emp.run.evaluate import COVERAGE_SKILLS
+    from mjx_emp.metrics import aggregate_phase2, mean_and_stderr
+    from mjx_emp.run.evaluate import COVERAGE_SKILLS, phase2_figures
 
     runs = []
     for run_dir in exp.run_dirs:
         agent, _, state = run.load_run(Path(run_dir))
-        runs.append({"run_dir": run_dir, **skill_figures(agent, state, jax.random.key(exp.seed))})
+        report = {"run_dir": run_dir, **skill_figures(agent, state, jax.random.key(exp.seed))}
+        phase2_dir = Path(run_dir) / run.PHASE2_SUBDIR
+        if (phase2_dir / run.CONFIG_FILE).exists():
+            report["phase2"] = phase2_figures(*run.load_phase2(phase2_dir), jax.random.key(exp.seed), exp.episodes)
+        runs.append(report)
     report = {"runs": runs, "coverage_cells": mean_and_stderr([r["coverage_cells"] for r in runs])}
+    with_phase2 = [r["phase2"] for r in runs if "phase2" in r]
+    if with_phase2:
+        report["phase2"] = aggregate_phase2(with_phase2)
     stds = [r["posterior_std"] for r in runs if r["posterior_std"] is not None]
     if stds:
         report["posterior_std"] = mean_and_stderr(stds)
@@ -223,6 +231,11 @@ def evaluate_skills(exp: EvalExperiment, skill_figures) -> dict:
           f"state, 1 m cells of goal space): {cover['mean']:.3g} ± {cover['stderr']:.2g} cells")
     if stds:
         print(f"posterior mean std: {report['posterior_std']['mean']:.3g} ± {report['posterior_std']['stderr']:.2g}")
+    if with_phase2:
+        p2 = report["phase2"]
+        print(f"phase 2 ({len(with_phase2)} run(s), {with_phase2[0]['episodes']} episodes each): mean min distance "
+              f"to goal {p2['min_distance']['mean']:.3g} ± {p2['min_distance']['stderr']:.2g}, success "
+              f"{p2['success']['mean']:.3g} ± {p2['success']['stderr']:.2g}")
     print(f"wrote {out}")
     return report
 
@@ -234,7 +247,6 @@ def with_phase2_preset(args: list[str]) -> list[str]:
     """
     if not args or args[0] in PHASE2_PRESETS or args[0].startswith("-"):
         return args
-    run.require_goal_spaces(Path(args[0]), "phase2")
     skills = run.read_run_config(Path(args[0]), "run_dir")
     preset = phase2_preset_for(skills)
     if preset is None:

@@ -50,7 +50,8 @@ class ResumeExperiment:
 @dataclasses.dataclass(frozen=True)
 class Phase2Experiment:
     """Phase 2 of Hierarchical Empowerment: learn to reach goals drawn uniformly from a fixed
-    region, with the phase-1 run's top-level skills as actions.
+    region, with the phase-1 run's top-level skills as actions (for a flat skill learner's
+    run: its skills z, each run for the skill's length).
 
     Writes to OUT (default RUN_DIR/phase2): config.json, skills.json (the phase-1 config),
     metrics.jsonl and checkpoints/ (one per epoch; continue with

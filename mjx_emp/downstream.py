@@ -260,13 +260,7 @@ class Phase2Trainer:
         success rate (within eps) and the number of episodes.
         """
         rounds = max(1, math.ceil(episodes / self.cfg.num_envs))
-        counts, success, distance = _jit_evaluate(self, state, key, rounds)
-        weights = np.asarray(counts, float)
-        return {
-            "min_distance": float(np.average(np.asarray(distance), weights=weights)),
-            "success": float(np.average(np.asarray(success), weights=weights)),
-            "episodes": int(weights.sum()),
-        }
+        return phase2_evaluate(*_jit_evaluate(self, state, key, rounds))
 
     def _evaluate(self, state: Phase2State, key: jax.Array, rounds: int):
         def one(_, round_key):
@@ -279,42 +273,67 @@ class Phase2Trainer:
     # ---- reporting ------------------------------------------------------------------
     def metrics(self, state: Phase2State, stats: Phase2Stats, seconds: float) -> dict[str, Any]:
         """One JSON-ready line of an epoch: greedy min distance and success, training figures."""
-        s = jax.tree.map(np.asarray, stats)
-        train, evals = s.train, ~s.train
-
-        def mean(field, rows):
-            values = getattr(s, field)[rows]
-            return float(values.mean()) if values.size else None
-
-        return {
-            **epoch_header(state, float(s.env_steps.sum()), seconds),
-            "min_distance": mean("min_distance", evals),
-            "success": mean("success", evals),
-            "train_min_distance": mean("min_distance", train),
-            "train_success": mean("success", train),
-            "critic_loss": mean("critic_loss", train),
-            "actor_loss": mean("actor_loss", train),
-            "transitions": float(s.transitions.sum()),
-        }
+        return phase2_metrics(state, stats, seconds)
 
     def describe(self, metrics: dict) -> str:
         """A short human-readable summary of an epoch's metrics."""
-        return (f"{metrics['env_steps']:.3g} env steps  {metrics['env_steps_per_s']:.3g} steps/s  "
-                f"min distance {metrics['min_distance']:.3g} (eps {self.cfg.eps:g})  "
-                f"success {metrics['success']:.2f}")
+        return phase2_describe(metrics, self.cfg.eps)
 
     def divergence(self, state: Phase2State, stats: Phase2Stats) -> str | None:
         """Why this epoch's result must not be kept (a non-finite loss or parameter), or None."""
-        s = jax.tree.map(np.asarray, stats)
-        for name in ("critic_loss", "actor_loss"):
-            values = getattr(s, name)[s.train]
-            if not np.isfinite(values).all():
-                return f"phase-2 {name.replace('_', ' ')} is {values[~np.isfinite(values)][0]}"
-        if not bool(all_finite(state.learner)):
-            return "a phase-2 network parameter or optimizer state is not finite"
-        return None
-
+        return phase2_divergence(state.learner, stats)
 
 _jit_init = jax.jit(Phase2Trainer._init, static_argnums=0)
 _jit_train_epoch = jax.jit(Phase2Trainer._train_epoch, static_argnums=0, donate_argnums=1)
 _jit_evaluate = jax.jit(Phase2Trainer._evaluate, static_argnums=(0, 3))
+
+
+def phase2_metrics(state: Any, stats: Phase2Stats, seconds: float) -> dict[str, Any]:
+    """One JSON-ready line of a phase-2 epoch (any skills): greedy min distance and success
+    from the evaluation items, training figures from the others."""
+    s = jax.tree.map(np.asarray, stats)
+    train, evals = s.train, ~s.train
+
+    def mean(field, rows):
+        values = getattr(s, field)[rows]
+        return float(values.mean()) if values.size else None
+
+    return {
+        **epoch_header(state, float(s.env_steps.sum()), seconds),
+        "min_distance": mean("min_distance", evals),
+        "success": mean("success", evals),
+        "train_min_distance": mean("min_distance", train),
+        "train_success": mean("success", train),
+        "critic_loss": mean("critic_loss", train),
+        "actor_loss": mean("actor_loss", train),
+        "transitions": float(s.transitions.sum()),
+    }
+
+
+def phase2_describe(metrics: dict, eps: float) -> str:
+    """A short human-readable summary of a phase-2 epoch's metrics."""
+    return (f"{metrics['env_steps']:.3g} env steps  {metrics['env_steps_per_s']:.3g} steps/s  "
+            f"min distance {metrics['min_distance']:.3g} (eps {eps:g})  "
+            f"success {metrics['success']:.2f}")
+
+
+def phase2_divergence(learner: DDPGLearner, stats: Phase2Stats) -> str | None:
+    """Why a phase-2 epoch must not be kept (a non-finite loss or parameter), or None."""
+    s = jax.tree.map(np.asarray, stats)
+    for name in ("critic_loss", "actor_loss"):
+        values = getattr(s, name)[s.train]
+        if not np.isfinite(values).all():
+            return f"phase-2 {name.replace('_', ' ')} is {values[~np.isfinite(values)][0]}"
+    if not bool(all_finite(learner)):
+        return "a phase-2 network parameter or optimizer state is not finite"
+    return None
+
+
+def phase2_evaluate(counts: jax.Array, success: jax.Array, distance: jax.Array) -> dict[str, float]:
+    """Per-round (episodes, success, mean min distance) pooled into the paper's phase-2 figures."""
+    weights = np.asarray(counts, float)
+    return {
+        "min_distance": float(np.average(np.asarray(distance), weights=weights)),
+        "success": float(np.average(np.asarray(success), weights=weights)),
+        "episodes": int(weights.sum()),
+    }

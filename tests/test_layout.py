@@ -19,7 +19,7 @@ LAYERS = [
      "mjx_emp.algos.skills.config", "mjx_emp.algos.skills.objectives", "mjx_emp.algos.skills.agent",
      "mjx_emp.algos.skills.presets"],
     ["mjx_emp.algos.registry"],
-    ["mjx_emp.downstream"],
+    ["mjx_emp.downstream", "mjx_emp.downstream_flat"],
     ["mjx_emp.commands"],
     ["mjx_emp.run.checkpoint", "mjx_emp.run.directory", "mjx_emp.run.evaluate"],
     ["mjx_emp.viz.plots", "mjx_emp.viz.render"],

@@ -220,7 +220,7 @@ def test_bad_skill_config_names_the_field(change, message):
     assert message in str(err.value)
 
 
-@pytest.mark.parametrize("command", ["plot", "render", "phase2"])
+@pytest.mark.parametrize("command", ["plot", "render"])
 def test_commands_that_need_goal_spaces_refuse_a_flat_learners_run(command, tmp_path):
     (tmp_path / "config.json").write_text(json.dumps(config_to_json(tiny("metra"))))
     (tmp_path / "metrics.jsonl").write_text("")

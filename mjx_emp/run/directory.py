@@ -258,7 +258,7 @@ def resume(exp: ResumeExperiment):
 
 
 GOAL_SPACE_ALGORITHMS = ("he", "gcrl")
-"""Algorithms whose runs have goal spaces (what phase 2, plot and render build on today)."""
+"""Algorithms whose runs have goal spaces (what plot and render draw)."""
 
 
 def require_goal_spaces(run_dir: Path, command: str, field: str = "run_dir") -> None:
@@ -269,7 +269,8 @@ def require_goal_spaces(run_dir: Path, command: str, field: str = "run_dir") -> 
     name = algorithm_of(read_run_config(Path(run_dir), field)).name
     if name not in GOAL_SPACE_ALGORITHMS:
         raise ConfigError(f"{field}: {str(run_dir)!r} is a {name} run; `mjx-emp {command}` works on runs of "
-                          f"{list(GOAL_SPACE_ALGORITHMS)} (flat skill learners: `mjx-emp eval` reports their coverage)")
+                          f"{list(GOAL_SPACE_ALGORITHMS)} (flat skill learners: `mjx-emp eval` reports their coverage, "
+                          f"`mjx-emp phase2` trains on their skills)")
 
 
 def train_phase2(exp: Phase2Experiment):
@@ -278,13 +279,12 @@ def train_phase2(exp: Phase2Experiment):
     _check_keep(exp.keep_checkpoints)
     if not exp.run_dir:
         raise ConfigError("run_dir: give the phase-1 run directory, e.g. `mjx-emp phase2 runs/pm1`")
-    from mjx_emp.downstream import Phase2Trainer
+    from mjx_emp.downstream_flat import make_phase2_trainer
 
-    require_goal_spaces(Path(exp.run_dir), "phase2")
     requested = None if exp.config.phase1_epoch < 0 else exp.config.phase1_epoch
     skills, epoch, skills_state = load_run(Path(exp.run_dir), field="run_dir", epoch=requested)
     cfg = dataclasses.replace(exp.config, phase1_epoch=epoch)
-    trainer = Phase2Trainer(skills, cfg)
+    trainer = make_phase2_trainer(skills, cfg)
     out = _fresh_run_dir(exp.out or str(Path(exp.run_dir) / PHASE2_SUBDIR), "out", "a phase-2 run", "mjx-emp phase2")
     print(f"phase 2 on the skills of {exp.run_dir} (epoch {epoch}), writing to {out}", flush=True)
     write_atomically(out / SKILLS_FILE, json.dumps(config_json(skills.cfg), indent=1))
@@ -298,11 +298,11 @@ def load_phase2(phase2_dir: Path, fallback: bool = False, epochs: int | None = N
     """
     import jax
 
-    from mjx_emp.downstream import Phase2Trainer
+    from mjx_emp.downstream_flat import make_phase2_trainer
 
     phase2_dir = Path(phase2_dir)
     cfg = _with_epochs(read_run_config(phase2_dir, field, Phase2Config), epochs)
-    trainer = Phase2Trainer(make_agent(read_run_config(phase2_dir, field, file=SKILLS_FILE)), cfg)
+    trainer = make_phase2_trainer(make_agent(read_run_config(phase2_dir, field, file=SKILLS_FILE)), cfg)
     template = jax.eval_shape(trainer.init, jax.eval_shape(trainer.phase1.init))
     epoch, state = _restore(phase2_dir, trainer, template, fallback)
     return trainer, epoch, state

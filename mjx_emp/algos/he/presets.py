@@ -239,14 +239,19 @@ PHASE2_PRESETS: dict[str, tuple[str, str, Phase2Config]] = {
 }
 
 
-def phase2_preset_for(skills: TrainConfig) -> str | None:
+def phase2_preset_for(skills) -> str | None:
     """The phase-2 preset for a run trained with ``skills``: the one built on the phase-1
     preset it was trained with (seed and epochs aside), else the first one built on a
-    preset with its domain and n, else None."""
+    preset with its domain and n, else None. A flat skill learner's run gets its domain's
+    one-level CPU task (the skills there are as long as HE's k=1 skills)."""
     def same_preset(base: TrainConfig) -> bool:
         return dataclasses.replace(base, seed=skills.seed, epochs=skills.epochs) == skills
 
     candidates = [(name, PRESETS[phase1][1]) for name, (_, phase1, _) in PHASE2_PRESETS.items()]
+    if not isinstance(skills, TrainConfig):  # a flat skill learner: the one-level CPU task of its domain
+        cpu = {"point_mass": "point-mass-k1", "ant_field": "ant-field-cpu-k1",
+               "half_cheetah_field": "half-cheetah-cpu-k1"}
+        return cpu.get(skills.env)
     for name, base in candidates:
         if same_preset(base):
             return name

@@ -1,0 +1,276 @@
+"""Phase 2 over a flat skill learner's frozen skills (DIAYN, HIDIO, DADS, METRA).
+
+The same task, attempts, eps, reward and metric as HE's phase 2 (:mod:`mjx_emp.downstream`):
+an episode starts at the initial state with a goal uniform in the region; the phase-2
+policy has ``n`` attempts, each one skill z that the frozen skill policy executes greedily
+for the skill's length (from where the attempt begins, so the skill's descriptor counts
+displacement from there); an attempt that ends within ``eps`` of the goal ends the episode
+as a success. The policy is goal-conditioned DDPG over z (tanh into [-1, 1]^d; METRA's z are
+projected onto the unit sphere, the skills it trained), one transition per attempt,
+rewarded log N(goal; h(s_end), sigma). The mean minimum distance counts every primitive
+step; an episode cut short by a reset (a flipped Ant) ends there, scored at its last state
+before the reset, as in HE's phase 2.
+
+Every environment plays exactly one episode per collect call: a scan of n x (skill length)
+steps in which environments whose episode has ended idle (their steps do not count).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+from flax import struct
+
+from mjx_emp.algos.he.config import Phase2Config, check_phase2_config
+from mjx_emp.algos.skills.agent import SkillAgent, SkillState
+from mjx_emp.counters import StepCounter
+from mjx_emp.downstream import (
+    Phase2Stats,
+    Phase2Trainer,
+    phase2_describe,
+    phase2_divergence,
+    phase2_evaluate,
+    phase2_metrics,
+)
+from mjx_emp.envs.env import EnvState
+from mjx_emp.learners.ddpg import DDPGLearner, GoalTransition, ddpg_losses, ddpg_step
+from mjx_emp.nets import MLP, goal_conditioned_q, goal_features
+from mjx_emp.replay import ReplayBuffer, flatten_rows, replay_init, replay_insert, replay_sample
+from mjx_emp.tracing import count_trace
+
+TRAIN_EPOCH_TRACE = "downstream_flat.train_epoch"
+"""Name under which :mod:`mjx_emp.tracing` counts traces (compiles) of the flat phase-2 epoch."""
+Params = Any
+
+
+@struct.dataclass
+class FlatPhase2State:
+    """Phase 2's learner and replay, with the frozen skill policy it commands."""
+
+    skill_actor: Params
+    learner: DDPGLearner
+    replay: ReplayBuffer
+    key: jax.Array
+    epoch: jax.Array
+    env_steps: StepCounter
+
+
+@struct.dataclass
+class Attempts:
+    """Per environment during one collect call: its episode so far."""
+
+    env: EnvState
+    goal: jax.Array
+    skill: jax.Array
+    attempt_obs: jax.Array
+    count: jax.Array
+    attempts: jax.Array
+    closest: jax.Array
+    done: jax.Array
+    reached: jax.Array
+    key: jax.Array
+
+
+@dataclasses.dataclass(frozen=True)
+class FlatPhase2Trainer:
+    """Static side of phase 2 over a flat learner's skills; hashes by the two configs."""
+
+    phase1: SkillAgent
+    cfg: Phase2Config
+
+    def __post_init__(self):
+        check_phase2_config(self.cfg, self.phase1.env.goal_size)
+
+    @property
+    def env(self):
+        return self.phase1.env
+
+    @functools.cached_property
+    def actor_net(self) -> MLP:
+        return MLP(tuple(self.cfg.hidden), self.phase1.cfg.skill_dim)
+
+    @functools.cached_property
+    def critic_net(self) -> MLP:
+        return MLP(tuple(self.cfg.hidden), 1)
+
+    @functools.cached_property
+    def optimizers(self) -> tuple[optax.GradientTransformation, optax.GradientTransformation]:
+        return optax.adam(self.cfg.actor_lr), optax.adam(self.cfg.critic_lr)
+
+    def q_value(self, params: Params, obs: jax.Array, goal: jax.Array, skill: jax.Array) -> jax.Array:
+        """Q(s, goal, z) of the phase-2 critic."""
+        return goal_conditioned_q(self.critic_net, self.env, params, obs, goal, skill)
+
+    def as_skill(self, unit: jax.Array) -> jax.Array:
+        """A point of [-1, 1]^d as a skill the learner trained: itself, or for METRA its direction."""
+        if self.phase1.method != "metra":
+            return unit
+        return unit / jnp.maximum(jnp.linalg.norm(unit, axis=-1, keepdims=True), 1e-6)
+
+    def choose(self, actor: Params, obs: jax.Array, goal: jax.Array) -> jax.Array:
+        """The greedy skill for (state, goal), one row or a batch."""
+        return self.as_skill(jnp.tanh(self.actor_net.apply(actor, goal_features(self.env, obs, goal))))
+
+    def explore(self, actor: Params, obs: jax.Array, goal: jax.Array, noise: jax.Array, key: jax.Array) -> jax.Array:
+        """The skill with Gaussian exploration noise (std ``noise``) before the squashing into a skill."""
+        unit = jnp.tanh(self.actor_net.apply(actor, goal_features(self.env, obs, goal)))
+        unit = jnp.clip(unit + noise * jax.random.normal(key, unit.shape), -1.0, 1.0)
+        return self.as_skill(unit)
+
+    # ---- state ----------------------------------------------------------------------
+    def init(self, skills_state: SkillState, key: jax.Array | None = None) -> FlatPhase2State:
+        """Fresh phase-2 networks and an empty replay on top of ``skills_state``'s frozen policy."""
+        return _jit_init(self, skills_state, jax.random.key(self.cfg.seed) if key is None else key)
+
+    def _init(self, skills_state: SkillState, key: jax.Array) -> FlatPhase2State:
+        env, cfg = self.env, self.cfg
+        obs, goal = jnp.asarray(self.phase1.initial_obs), jnp.zeros(env.goal_size)
+        skill = jnp.zeros(self.phase1.cfg.skill_dim)
+        key, actor_key, critic_key = jax.random.split(key, 3)
+        actor = self.actor_net.init(actor_key, goal_features(env, obs, goal))
+        critic = self.critic_net.init(critic_key, jnp.concatenate([goal_features(env, obs, goal), skill]))
+        actor_tx, critic_tx = self.optimizers
+        learner = DDPGLearner(actor, critic, actor, critic, actor_tx.init(actor), critic_tx.init(critic))
+        row = GoalTransition(obs, goal, skill, obs, jnp.zeros((), bool))
+        return FlatPhase2State(skill_actor=skills_state.sac.actor, learner=learner,
+                               replay=replay_init(row, cfg.replay_capacity), key=key,
+                               epoch=jnp.zeros((), jnp.int32), env_steps=StepCounter.zero())
+
+    def region(self) -> tuple[np.ndarray, np.ndarray]:
+        """The goal region as absolute (low, high) corners in goal space."""
+        centre = self.env.goal_of_obs(self.phase1.initial_obs) + np.asarray(self.cfg.region_offset)
+        half = np.asarray(self.cfg.region) / 2
+        return centre - half, centre + half
+
+    # ---- episodes -------------------------------------------------------------------
+    def _collect(self, state: FlatPhase2State, noise: jax.Array, store: jax.Array, key: jax.Array):
+        """One episode per environment; where ``store``, every attempt goes to the replay."""
+        env, cfg, skill_steps = self.env, self.cfg, self.phase1.cfg.n
+        batch = cfg.num_envs
+        reset_key, goal_key, choose_key, key = jax.random.split(key, 4)
+        low, high = self.region()
+        initial = jnp.asarray(self.phase1.initial_obs)
+        env_state = jax.vmap(lambda k: env.restore(k, initial))(jax.random.split(reset_key, batch))
+        goal = jax.random.uniform(goal_key, (batch,) + low.shape, minval=low, maxval=high)
+        obs = jax.vmap(env.observe)(env_state)
+        carry = Attempts(
+            env=env_state, goal=goal, skill=self.explore(state.learner.actor, obs, goal, noise, choose_key),
+            attempt_obs=obs, count=jnp.zeros(batch, jnp.int32), attempts=jnp.zeros(batch, jnp.int32),
+            closest=jnp.full(batch, jnp.inf), done=jnp.zeros(batch, bool), reached=jnp.zeros(batch, bool), key=key,
+        )
+
+        def step(c: Attempts, _):
+            key, choose_key = jax.random.split(c.key)
+            obs = jax.vmap(env.observe)(c.env)
+            action = jax.vmap(self.phase1.greedy, in_axes=(None, 0, 0, 0, None))(
+                state.skill_actor, obs, c.attempt_obs, c.skill, key)
+            stepped = jax.vmap(env.step)(c.env, action)
+            broke = stepped.resets > c.env.resets
+            next_obs = jax.vmap(env.observe)(stepped)
+            active = ~c.done
+            # A reset ends the episode, scored at its last state before the resetting action.
+            scored = jnp.where(broke[:, None], obs, next_obs)
+            distance = jnp.linalg.norm(env.goal_of_obs(scored) - c.goal, axis=-1)
+            closest = jnp.where(active, jnp.minimum(c.closest, distance), c.closest)
+            count = c.count + 1
+            attempt_end = active & ((count >= skill_steps) | broke)
+            reached = attempt_end & ~broke & (distance < cfg.eps)
+            attempts = c.attempts + attempt_end.astype(jnp.int32)
+            episode_end = attempt_end & (reached | (attempts >= cfg.n) | broke)
+            transition = GoalTransition(obs=c.attempt_obs, goal=c.goal, action=c.skill, next_obs=next_obs,
+                                        reached=reached)
+            following = self.explore(state.learner.actor, next_obs, c.goal, noise, choose_key)
+            new_attempt = attempt_end & ~episode_end
+            carry = Attempts(
+                env=stepped, goal=c.goal,
+                skill=jnp.where(new_attempt[:, None], following, c.skill),
+                attempt_obs=jnp.where(new_attempt[:, None], next_obs, c.attempt_obs),
+                count=jnp.where(attempt_end, 0, count), attempts=attempts, closest=closest,
+                done=c.done | episode_end, reached=c.reached | reached, key=key,
+            )
+            return carry, (transition, attempt_end & ~broke, active)
+
+        carry, (transitions, stored, active) = jax.lax.scan(step, carry, None, length=cfg.n * skill_steps)
+        replay = replay_insert(state.replay, flatten_rows(transitions), flatten_rows(stored) & store)
+        steps = active.sum(dtype=jnp.int32)
+        totals = (steps, jnp.where(store, stored.sum(dtype=jnp.int32), 0), jnp.int32(batch),
+                  carry.reached.mean(), carry.closest.mean())
+        return state.replace(replay=replay, env_steps=state.env_steps.add(steps)), totals
+
+    # ---- learning and the epoch ------------------------------------------------------
+    def _update(self, state: FlatPhase2State, key: jax.Array) -> tuple[FlatPhase2State, jax.Array]:
+        cfg = self.cfg
+        actor_tx, critic_tx = self.optimizers
+
+        def step(learner: DDPGLearner, step_key):
+            batch = replay_sample(state.replay, step_key, cfg.batch_size)
+            losses = ddpg_losses(self.choose, self.q_value, learner, batch, self.env, cfg.sigma, cfg.gamma)
+            return ddpg_step(learner, losses, actor_tx, critic_tx, cfg.tau)
+
+        learner, losses = jax.lax.scan(step, state.learner, jax.random.split(key, cfg.grad_steps))
+        return state.replace(learner=learner), losses.mean(axis=0)
+
+    def _train_epoch(self, state: FlatPhase2State) -> tuple[FlatPhase2State, Phase2Stats]:
+        count_trace(TRAIN_EPOCH_TRACE)
+        cfg = self.cfg
+
+        def item(state: FlatPhase2State, train: jax.Array):
+            key, collect_key, update_key = jax.random.split(state.key, 3)
+            state, (steps, transitions, episodes, success, distance) = self._collect(
+                state.replace(key=key), jnp.where(train, cfg.action_noise, 0.0), train, collect_key)
+            state, losses = jax.lax.cond(train, self._update, lambda s, _: (s, jnp.full(2, jnp.nan)), state, update_key)
+            return state, Phase2Stats(train=train, env_steps=steps, transitions=transitions, episodes=episodes,
+                                      success=success, min_distance=distance, critic_loss=losses[0],
+                                      actor_loss=losses[1])
+
+        schedule = jnp.asarray([True] * cfg.iterations + [False] * cfg.eval_rounds)
+        state, stats = jax.lax.scan(item, state, schedule)
+        return state.replace(epoch=state.epoch + 1), stats
+
+    def train_epoch(self, state: FlatPhase2State) -> tuple[FlatPhase2State, Phase2Stats]:
+        """One phase-2 epoch as one jitted call; returns per-item stats."""
+        return _jit_train_epoch(self, state)
+
+    def evaluate(self, state: FlatPhase2State, key: jax.Array, episodes: int = 400) -> dict[str, float]:
+        """The paper's phase-2 figures of the greedy policy on at least ``episodes`` fresh goals."""
+        rounds = max(1, math.ceil(episodes / self.cfg.num_envs))
+        return phase2_evaluate(*_jit_evaluate(self, state, key, rounds))
+
+    def _evaluate(self, state: FlatPhase2State, key: jax.Array, rounds: int):
+        def one(_, round_key):
+            _, (_, _, episodes, success, distance) = self._collect(state, jnp.zeros(()), jnp.bool_(False), round_key)
+            return None, (episodes, success, distance)
+
+        _, figures = jax.lax.scan(one, None, jax.random.split(key, rounds))
+        return figures
+
+    def metrics(self, state: FlatPhase2State, stats: Phase2Stats, seconds: float) -> dict[str, Any]:
+        """One JSON-ready line of an epoch, as HE's phase 2 writes it."""
+        return phase2_metrics(state, stats, seconds)
+
+    def describe(self, metrics: dict) -> str:
+        """A short human-readable summary of an epoch's metrics."""
+        return phase2_describe(metrics, self.cfg.eps)
+
+    def divergence(self, state: FlatPhase2State, stats: Phase2Stats) -> str | None:
+        """Why this epoch's result must not be kept, or None."""
+        return phase2_divergence(state.learner, stats)
+
+
+_jit_init = jax.jit(FlatPhase2Trainer._init, static_argnums=0)
+_jit_train_epoch = jax.jit(FlatPhase2Trainer._train_epoch, static_argnums=0, donate_argnums=1)
+_jit_evaluate = jax.jit(FlatPhase2Trainer._evaluate, static_argnums=(0, 3))
+
+
+def make_phase2_trainer(skills: Any, cfg: Phase2Config) -> Phase2Trainer | FlatPhase2Trainer:
+    """Phase 2 over any algorithm's skills: HE's and GCRL's goal spaces, or a flat learner's z."""
+    if isinstance(skills, SkillAgent):
+        return FlatPhase2Trainer(skills, cfg)
+    return Phase2Trainer(skills, cfg)

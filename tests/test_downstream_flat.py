@@ -1,0 +1,70 @@
+"""Phase 2 over a flat skill learner's frozen skills: episodes, attempts, learning, resume, eval."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from test_checkpoint import assert_bitwise_equal
+from test_skills import tiny
+from tiny import TINY_PHASE2, run_cli
+
+from mjx_emp.algos.skills.agent import SkillAgent
+from mjx_emp.commands import Phase2Experiment, ResumeExperiment, TrainExperiment
+from mjx_emp.downstream_flat import FlatPhase2Trainer, make_phase2_trainer
+from mjx_emp.run import directory as run
+
+
+@pytest.fixture(scope="module")
+def metra_phase2():
+    skills = SkillAgent(tiny("metra"))
+    skills_state = skills.init()
+    trainer = make_phase2_trainer(skills, TINY_PHASE2)
+    return trainer, skills_state, trainer.init(skills_state)
+
+
+def test_the_factory_picks_the_flat_trainer_and_it_chooses_unit_length_skills(metra_phase2):
+    trainer, _, state = metra_phase2
+    assert isinstance(trainer, FlatPhase2Trainer)
+    obs = jnp.broadcast_to(jnp.asarray(trainer.phase1.initial_obs), (5, trainer.env.obs_size))
+    goals = jax.random.uniform(jax.random.key(0), (5, 2), minval=-2, maxval=2)
+    skills = trainer.choose(state.learner.actor, obs, goals)
+    np.testing.assert_allclose(np.linalg.norm(skills, axis=-1), 1.0, rtol=1e-5)
+
+
+def test_a_collect_plays_one_episode_per_env_with_at_most_n_attempts(metra_phase2):
+    trainer, _, state = metra_phase2
+    cfg, skill_steps = trainer.cfg, trainer.phase1.cfg.n
+    new, (steps, transitions, episodes, success, distance) = jax.jit(trainer._collect, static_argnums=())(
+        state, jnp.float32(0.2), jnp.bool_(True), jax.random.key(1))
+    assert int(episodes) == cfg.num_envs
+    assert 0 < int(steps) <= cfg.num_envs * cfg.n * skill_steps
+    # every attempt lasts the skill's length unless it ends the episode by a reset
+    assert int(transitions) <= cfg.num_envs * cfg.n and int(transitions) >= cfg.num_envs
+    assert int(new.replay.size) == int(transitions)
+    assert 0.0 <= float(success) <= 1.0 and np.isfinite(float(distance))
+    # a stored attempt's next state is skill_steps actions from its first: the skill moved the point mass
+    rows = jax.tree.map(lambda x: np.asarray(x[: int(new.replay.size)]), new.replay.data)
+    assert np.abs(rows.next_obs[:, :2] - rows.obs[:, :2]).max() > 1e-3
+
+
+def test_flat_phase2_trains_resumes_bitwise_and_eval_reports_it(tmp_path):
+    run_dir = tmp_path / "metra"
+    run.train(TrainExperiment(config=tiny("metra"), run_dir=str(run_dir)))
+    straight = run.train_phase2(Phase2Experiment(run_dir=str(run_dir), config=TINY_PHASE2, out=str(tmp_path / "a")))
+    run.train_phase2(Phase2Experiment(run_dir=str(run_dir), config=dataclasses.replace(TINY_PHASE2, epochs=1),
+                                      out=str(tmp_path / "b")))
+    resumed = run.resume_phase2(ResumeExperiment(resume=str(tmp_path / "b"), epochs=TINY_PHASE2.epochs))
+    assert_bitwise_equal(resumed, straight)
+    lines = [json.loads(line) for line in (tmp_path / "a" / "metrics.jsonl").read_text().splitlines()]
+    assert lines[-1]["critic_loss"] is not None and 0 <= lines[-1]["success"] <= 1
+    result = run_cli("phase2", str(run_dir), "--epochs", "1")
+    assert result.returncode == 0, result.stderr
+    result = run_cli("eval", str(run_dir), "--episodes", "16")
+    assert result.returncode == 0, result.stderr
+    report = json.loads((run_dir / "eval.json").read_text())
+    assert report["runs"][0]["phase2"]["episodes"] >= 16 and "phase 2" in result.stdout
