@@ -20,6 +20,7 @@ import json
 from pathlib import Path
 
 import jax
+import numpy as np
 import tyro
 
 from mjx_emp.algos.he.presets import PHASE2_PRESETS, phase2_preset_for
@@ -45,6 +46,8 @@ class Args:
     """Also train phase 2 (the domain's CPU task, `mjx-emp phase2 RUN_DIR`) on every run's skills."""
     base: str = "runs/baselines"
     out: str = "benchmarks/results/baselines_cpu.json"
+    charts: str = "docs/img"
+    """Where the charts go (baselines_<env>.png); empty draws none."""
 
 
 def train_or_resume(base: Path, preset: str, seed: int, epochs: int | None) -> Path:
@@ -128,6 +131,54 @@ def main(args: Args) -> None:
         print(f"| {preset} | {len(mine)} | {mine[0]['env_steps']:.3g} | {sum(r['wall_s'] for r in mine) / len(mine):.0f} "
               f"| {cells['mean']:.3g} ± {cells['std']:.2g} | {std} | {p2_text} |")
     print(f"wrote {out}")
+    if args.charts:
+        for env in dict.fromkeys(r["env"] for r in rows):
+            print(f"wrote {draw_charts([r for r in rows if r['env'] == env], Path(args.charts) / f'baselines_{env}.png')}")
+
+
+def phase2_curve(run_dir: Path) -> tuple[np.ndarray, np.ndarray] | None:
+    """(phase-2 env steps, greedy mean min distance) per epoch of RUN_DIR/phase2, or None."""
+    path = Path(run_dir) / run.PHASE2_SUBDIR / run.METRICS_FILE
+    if not path.exists():
+        return None
+    lines = [json.loads(line) for line in path.read_text().splitlines() if line]
+    return np.array([m["env_steps"] for m in lines]), np.array([m["min_distance"] for m in lines])
+
+
+def draw_charts(rows: list[dict], path: Path) -> Path:
+    """The paper's Fig. 3-style chart (phase-2 mean min distance against phase-2 steps, mean
+    over seeds with std bars) beside a coverage bar chart (mean ± std over seeds)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (curves, bars) = plt.subplots(1, 2, figsize=(11, 4))
+    presets = list(dict.fromkeys(r["preset"] for r in rows))
+    for preset in presets:
+        found = [c for c in (phase2_curve(r["run_dir"]) for r in rows if r["preset"] == preset) if c is not None]
+        if not found:
+            continue
+        length = min(len(c[0]) for c in found)
+        steps = found[0][0][:length]
+        distances = np.stack([c[1][:length] for c in found])
+        curves.errorbar(steps, distances.mean(0), yerr=distances.std(0, ddof=1) if len(found) > 1 else None,
+                        label=f"{preset} ({len(found)})", capsize=2)
+    curves.set_xlabel("phase-2 environment steps")
+    curves.set_ylabel("greedy mean min distance to goal (m)")
+    curves.set_title("phase 2 (seeds in brackets)")
+    curves.legend(fontsize=7)
+    cells = [[r["coverage_cells"] for r in rows if r["preset"] == p] for p in presets]
+    bars.bar(range(len(presets)), [np.mean(c) for c in cells],
+             yerr=[np.std(c, ddof=1) if len(c) > 1 else 0 for c in cells], capsize=3)
+    bars.set_xticks(range(len(presets)), presets, rotation=30, ha="right", fontsize=7)
+    bars.set_ylabel("1 m cells visited by 48 greedy skills")
+    bars.set_title(f"coverage, {rows[0]['env']}")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
 
 
 if __name__ == "__main__":
