@@ -21,9 +21,8 @@ from pathlib import Path
 
 import jax
 import tyro
+from baselines import train_or_resume
 
-from mjx_emp.algos.he.presets import PRESETS
-from mjx_emp.commands import ResumeExperiment, TrainExperiment
 from mjx_emp.run import directory as run
 from mjx_emp.run.evaluate import phase1_figures, phase2_figures
 
@@ -47,21 +46,6 @@ class Args:
     episodes: int = 400
     """Greedy evaluation episodes per run."""
     out: str = "benchmarks/results/robots_cpu.json"
-
-
-def train_or_resume(base: Path, preset: str, seed: int, epochs: int | None) -> Path:
-    """The run directory of (preset, seed), trained to its epoch count."""
-    if preset not in PRESETS:
-        raise SystemExit(f"presets: {preset!r} is unknown; allowed values: {sorted(PRESETS)}")
-    config = dataclasses.replace(PRESETS[preset][1], seed=seed)
-    if epochs is not None:
-        config = dataclasses.replace(config, epochs=epochs)
-    run_dir = base / f"{preset}-s{seed}"
-    if (run_dir / run.CONFIG_FILE).exists():
-        run.resume(ResumeExperiment(resume=str(run_dir), epochs=config.epochs))
-    else:
-        run.train(TrainExperiment(config=config, run_dir=str(run_dir)))
-    return run_dir
 
 
 def evaluate_run(run_dir: Path, preset: str, seed: int, episodes: int, epoch: int | None = None) -> dict:

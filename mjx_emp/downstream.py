@@ -77,8 +77,107 @@ class Phase2Stats:
     actor_loss: jax.Array
 
 
+class Phase2Loop:
+    """What every phase-2 trainer (over HE's or a flat learner's skills) does the same way: the
+    epoch (``iterations`` collect-and-update items, then ``eval_rounds`` greedy items, one
+    jitted call), the paper's figures of the greedy policy, the metrics line, its summary and
+    the divergence check. A subclass provides ``cfg``, ``trace_name`` and
+    ``_collect(state, noise, store, key) -> (state, CollectTotals)`` and
+    ``_update(state, key) -> (state, [critic loss, actor loss])``."""
+
+    cfg: Phase2Config
+    trace_name: str = TRAIN_EPOCH_TRACE
+
+    def _train_epoch(self, state: Any) -> tuple[Any, Phase2Stats]:
+        count_trace(self.trace_name)
+        cfg = self.cfg
+
+        def item(state, train: jax.Array):
+            key, collect_key, update_key = jax.random.split(state.key, 3)
+            noise = jnp.where(train, cfg.action_noise, 0.0)
+            state, totals = self._collect(state.replace(key=key), noise, train, collect_key)
+            state, losses = jax.lax.cond(
+                train, self._update, lambda s, _: (s, jnp.full(2, jnp.nan)), state, update_key
+            )
+            stats = Phase2Stats(
+                train=train, env_steps=totals.env_steps, transitions=totals.transitions,
+                episodes=totals.episodes, success=totals.success(), min_distance=totals.mean_distance(),
+                critic_loss=losses[0], actor_loss=losses[1],
+            )
+            return state, stats
+
+        schedule = jnp.asarray([True] * cfg.iterations + [False] * cfg.eval_rounds)
+        state, stats = jax.lax.scan(item, state, schedule)
+        return state.replace(epoch=state.epoch + 1), stats
+
+    def train_epoch(self, state: Any) -> tuple[Any, Phase2Stats]:
+        """One phase-2 epoch as one jitted call; returns per-item stats."""
+        return _jit_train_epoch(self, state)
+
+    def _evaluate(self, state: Any, key: jax.Array, rounds: int):
+        def one(_, round_key):
+            _, totals = self._collect(state, jnp.zeros(()), jnp.bool_(False), round_key)
+            return None, (totals.episodes, totals.success(), totals.mean_distance())
+
+        _, figures = jax.lax.scan(one, None, jax.random.split(key, rounds))
+        return figures
+
+    def evaluate(self, state: Any, key: jax.Array, episodes: int = 400) -> dict[str, float]:
+        """The paper's phase-2 figures of the greedy policy on at least ``episodes`` fresh goals.
+
+        Whole rounds of num_envs episodes; returns the mean minimum distance to goal, the
+        success rate (within eps) and the number of episodes.
+        """
+        rounds = max(1, math.ceil(episodes / self.cfg.num_envs))
+        counts, success, distance = _jit_evaluate(self, state, key, rounds)
+        weights = np.asarray(counts, float)
+        return {
+            "min_distance": float(np.average(np.asarray(distance), weights=weights)),
+            "success": float(np.average(np.asarray(success), weights=weights)),
+            "episodes": int(weights.sum()),
+        }
+
+    def metrics(self, state: Any, stats: Phase2Stats, seconds: float) -> dict[str, Any]:
+        """One JSON-ready line of an epoch: greedy min distance and success from the evaluation
+        items, training figures from the others."""
+        s = jax.tree.map(np.asarray, stats)
+        train, evals = s.train, ~s.train
+
+        def mean(field, rows):
+            values = getattr(s, field)[rows]
+            return float(values.mean()) if values.size else None
+
+        return {
+            **epoch_header(state, float(s.env_steps.sum()), seconds),
+            "min_distance": mean("min_distance", evals),
+            "success": mean("success", evals),
+            "train_min_distance": mean("min_distance", train),
+            "train_success": mean("success", train),
+            "critic_loss": mean("critic_loss", train),
+            "actor_loss": mean("actor_loss", train),
+            "transitions": float(s.transitions.sum()),
+        }
+
+    def describe(self, metrics: dict) -> str:
+        """A short human-readable summary of an epoch's metrics."""
+        return (f"{metrics['env_steps']:.3g} env steps  {metrics['env_steps_per_s']:.3g} steps/s  "
+                f"min distance {metrics['min_distance']:.3g} (eps {self.cfg.eps:g})  "
+                f"success {metrics['success']:.2f}")
+
+    def divergence(self, state: Any, stats: Phase2Stats) -> str | None:
+        """Why this epoch's result must not be kept (a non-finite loss or parameter), or None."""
+        s = jax.tree.map(np.asarray, stats)
+        for name in ("critic_loss", "actor_loss"):
+            values = getattr(s, name)[s.train]
+            if not np.isfinite(values).all():
+                return f"phase-2 {name.replace('_', ' ')} is {values[~np.isfinite(values)][0]}"
+        if not bool(all_finite(state.learner)):
+            return "a phase-2 network parameter or optimizer state is not finite"
+        return None
+
+
 @dataclasses.dataclass(frozen=True)
-class Phase2Trainer:
+class Phase2Trainer(Phase2Loop):
     """Static side of phase 2: the skill agent, the added level's networks, the k+1-level rollout.
 
     A static jit argument that hashes and compares by its two configs (phase 1's and
@@ -227,113 +326,7 @@ class Phase2Trainer:
         learner, losses = jax.lax.scan(step, state.learner, jax.random.split(key, cfg.grad_steps))
         return state.replace(learner=learner), losses.mean(axis=0)
 
-    def _train_epoch(self, state: Phase2State) -> tuple[Phase2State, Phase2Stats]:
-        count_trace(TRAIN_EPOCH_TRACE)
-        cfg = self.cfg
-
-        def item(state: Phase2State, train: jax.Array):
-            key, collect_key, update_key = jax.random.split(state.key, 3)
-            noise = jnp.where(train, cfg.action_noise, 0.0)
-            state, totals = self._collect(state.replace(key=key), noise, train, collect_key)
-            state, losses = jax.lax.cond(
-                train, self._update, lambda s, _: (s, jnp.full(2, jnp.nan)), state, update_key
-            )
-            stats = Phase2Stats(
-                train=train, env_steps=totals.env_steps, transitions=totals.transitions,
-                episodes=totals.episodes, success=totals.success(), min_distance=totals.mean_distance(),
-                critic_loss=losses[0], actor_loss=losses[1],
-            )
-            return state, stats
-
-        schedule = jnp.asarray([True] * cfg.iterations + [False] * cfg.eval_rounds)
-        state, stats = jax.lax.scan(item, state, schedule)
-        return state.replace(epoch=state.epoch + 1), stats
-
-    def train_epoch(self, state: Phase2State) -> tuple[Phase2State, Phase2Stats]:
-        """One phase-2 epoch as one jitted call; returns per-item stats."""
-        return _jit_train_epoch(self, state)
-
-    def evaluate(self, state: Phase2State, key: jax.Array, episodes: int = 400) -> dict[str, float]:
-        """The paper's phase-2 figures of the greedy policy on at least ``episodes`` fresh goals.
-
-        Whole rounds of num_envs episodes; returns the mean minimum distance to goal, the
-        success rate (within eps) and the number of episodes.
-        """
-        rounds = max(1, math.ceil(episodes / self.cfg.num_envs))
-        return phase2_evaluate(*_jit_evaluate(self, state, key, rounds))
-
-    def _evaluate(self, state: Phase2State, key: jax.Array, rounds: int):
-        def one(_, round_key):
-            _, totals = self._collect(state, jnp.zeros(()), jnp.bool_(False), round_key)
-            return None, (totals.episodes, totals.success(), totals.mean_distance())
-
-        _, figures = jax.lax.scan(one, None, jax.random.split(key, rounds))
-        return figures
-
-    # ---- reporting ------------------------------------------------------------------
-    def metrics(self, state: Phase2State, stats: Phase2Stats, seconds: float) -> dict[str, Any]:
-        """One JSON-ready line of an epoch: greedy min distance and success, training figures."""
-        return phase2_metrics(state, stats, seconds)
-
-    def describe(self, metrics: dict) -> str:
-        """A short human-readable summary of an epoch's metrics."""
-        return phase2_describe(metrics, self.cfg.eps)
-
-    def divergence(self, state: Phase2State, stats: Phase2Stats) -> str | None:
-        """Why this epoch's result must not be kept (a non-finite loss or parameter), or None."""
-        return phase2_divergence(state.learner, stats)
 
 _jit_init = jax.jit(Phase2Trainer._init, static_argnums=0)
-_jit_train_epoch = jax.jit(Phase2Trainer._train_epoch, static_argnums=0, donate_argnums=1)
-_jit_evaluate = jax.jit(Phase2Trainer._evaluate, static_argnums=(0, 3))
-
-
-def phase2_metrics(state: Any, stats: Phase2Stats, seconds: float) -> dict[str, Any]:
-    """One JSON-ready line of a phase-2 epoch (any skills): greedy min distance and success
-    from the evaluation items, training figures from the others."""
-    s = jax.tree.map(np.asarray, stats)
-    train, evals = s.train, ~s.train
-
-    def mean(field, rows):
-        values = getattr(s, field)[rows]
-        return float(values.mean()) if values.size else None
-
-    return {
-        **epoch_header(state, float(s.env_steps.sum()), seconds),
-        "min_distance": mean("min_distance", evals),
-        "success": mean("success", evals),
-        "train_min_distance": mean("min_distance", train),
-        "train_success": mean("success", train),
-        "critic_loss": mean("critic_loss", train),
-        "actor_loss": mean("actor_loss", train),
-        "transitions": float(s.transitions.sum()),
-    }
-
-
-def phase2_describe(metrics: dict, eps: float) -> str:
-    """A short human-readable summary of a phase-2 epoch's metrics."""
-    return (f"{metrics['env_steps']:.3g} env steps  {metrics['env_steps_per_s']:.3g} steps/s  "
-            f"min distance {metrics['min_distance']:.3g} (eps {eps:g})  "
-            f"success {metrics['success']:.2f}")
-
-
-def phase2_divergence(learner: DDPGLearner, stats: Phase2Stats) -> str | None:
-    """Why a phase-2 epoch must not be kept (a non-finite loss or parameter), or None."""
-    s = jax.tree.map(np.asarray, stats)
-    for name in ("critic_loss", "actor_loss"):
-        values = getattr(s, name)[s.train]
-        if not np.isfinite(values).all():
-            return f"phase-2 {name.replace('_', ' ')} is {values[~np.isfinite(values)][0]}"
-    if not bool(all_finite(learner)):
-        return "a phase-2 network parameter or optimizer state is not finite"
-    return None
-
-
-def phase2_evaluate(counts: jax.Array, success: jax.Array, distance: jax.Array) -> dict[str, float]:
-    """Per-round (episodes, success, mean min distance) pooled into the paper's phase-2 figures."""
-    weights = np.asarray(counts, float)
-    return {
-        "min_distance": float(np.average(np.asarray(distance), weights=weights)),
-        "success": float(np.average(np.asarray(success), weights=weights)),
-        "episodes": int(weights.sum()),
-    }
+_jit_train_epoch = jax.jit(Phase2Loop._train_epoch, static_argnums=0, donate_argnums=1)
+_jit_evaluate = jax.jit(Phase2Loop._evaluate, static_argnums=(0, 3))

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import math
 from typing import Any
 
 import jax
@@ -31,19 +30,12 @@ from flax import struct
 from mjx_emp.algos.he.config import Phase2Config, check_phase2_config
 from mjx_emp.algos.skills.agent import SkillAgent, SkillState
 from mjx_emp.counters import StepCounter
-from mjx_emp.downstream import (
-    Phase2Stats,
-    Phase2Trainer,
-    phase2_describe,
-    phase2_divergence,
-    phase2_evaluate,
-    phase2_metrics,
-)
+from mjx_emp.downstream import Phase2Loop, Phase2Trainer
 from mjx_emp.envs.env import EnvState
 from mjx_emp.learners.ddpg import DDPGLearner, GoalTransition, ddpg_losses, ddpg_step
 from mjx_emp.nets import MLP, goal_conditioned_q, goal_features
 from mjx_emp.replay import ReplayBuffer, flatten_rows, replay_init, replay_insert, replay_sample
-from mjx_emp.tracing import count_trace
+from mjx_emp.rollout.collect import CollectTotals
 
 TRAIN_EPOCH_TRACE = "downstream_flat.train_epoch"
 """Name under which :mod:`mjx_emp.tracing` counts traces (compiles) of the flat phase-2 epoch."""
@@ -79,11 +71,12 @@ class Attempts:
 
 
 @dataclasses.dataclass(frozen=True)
-class FlatPhase2Trainer:
+class FlatPhase2Trainer(Phase2Loop):
     """Static side of phase 2 over a flat learner's skills; hashes by the two configs."""
 
     phase1: SkillAgent
     cfg: Phase2Config
+    trace_name = TRAIN_EPOCH_TRACE  # a class attribute, not a field
 
     def __post_init__(self):
         check_phase2_config(self.cfg, self.phase1.env.goal_size)
@@ -200,8 +193,11 @@ class FlatPhase2Trainer:
         carry, (transitions, stored, active) = jax.lax.scan(step, carry, None, length=cfg.n * skill_steps)
         replay = replay_insert(state.replay, flatten_rows(transitions), flatten_rows(stored) & store)
         steps = active.sum(dtype=jnp.int32)
-        totals = (steps, jnp.where(store, stored.sum(dtype=jnp.int32), 0), jnp.int32(batch),
-                  carry.reached.mean(), carry.closest.mean())
+        totals = CollectTotals(
+            env_steps=steps, transitions=jnp.where(store, stored.sum(dtype=jnp.int32), 0), episodes=jnp.int32(batch),
+            reached=carry.reached.sum(dtype=jnp.int32), distance=carry.closest.sum(),
+            flip_resets=carry.env.flip_resets.sum(),
+        )
         return state.replace(replay=replay, env_steps=state.env_steps.add(steps)), totals
 
     # ---- learning and the epoch ------------------------------------------------------
@@ -217,56 +213,8 @@ class FlatPhase2Trainer:
         learner, losses = jax.lax.scan(step, state.learner, jax.random.split(key, cfg.grad_steps))
         return state.replace(learner=learner), losses.mean(axis=0)
 
-    def _train_epoch(self, state: FlatPhase2State) -> tuple[FlatPhase2State, Phase2Stats]:
-        count_trace(TRAIN_EPOCH_TRACE)
-        cfg = self.cfg
-
-        def item(state: FlatPhase2State, train: jax.Array):
-            key, collect_key, update_key = jax.random.split(state.key, 3)
-            state, (steps, transitions, episodes, success, distance) = self._collect(
-                state.replace(key=key), jnp.where(train, cfg.action_noise, 0.0), train, collect_key)
-            state, losses = jax.lax.cond(train, self._update, lambda s, _: (s, jnp.full(2, jnp.nan)), state, update_key)
-            return state, Phase2Stats(train=train, env_steps=steps, transitions=transitions, episodes=episodes,
-                                      success=success, min_distance=distance, critic_loss=losses[0],
-                                      actor_loss=losses[1])
-
-        schedule = jnp.asarray([True] * cfg.iterations + [False] * cfg.eval_rounds)
-        state, stats = jax.lax.scan(item, state, schedule)
-        return state.replace(epoch=state.epoch + 1), stats
-
-    def train_epoch(self, state: FlatPhase2State) -> tuple[FlatPhase2State, Phase2Stats]:
-        """One phase-2 epoch as one jitted call; returns per-item stats."""
-        return _jit_train_epoch(self, state)
-
-    def evaluate(self, state: FlatPhase2State, key: jax.Array, episodes: int = 400) -> dict[str, float]:
-        """The paper's phase-2 figures of the greedy policy on at least ``episodes`` fresh goals."""
-        rounds = max(1, math.ceil(episodes / self.cfg.num_envs))
-        return phase2_evaluate(*_jit_evaluate(self, state, key, rounds))
-
-    def _evaluate(self, state: FlatPhase2State, key: jax.Array, rounds: int):
-        def one(_, round_key):
-            _, (_, _, episodes, success, distance) = self._collect(state, jnp.zeros(()), jnp.bool_(False), round_key)
-            return None, (episodes, success, distance)
-
-        _, figures = jax.lax.scan(one, None, jax.random.split(key, rounds))
-        return figures
-
-    def metrics(self, state: FlatPhase2State, stats: Phase2Stats, seconds: float) -> dict[str, Any]:
-        """One JSON-ready line of an epoch, as HE's phase 2 writes it."""
-        return phase2_metrics(state, stats, seconds)
-
-    def describe(self, metrics: dict) -> str:
-        """A short human-readable summary of an epoch's metrics."""
-        return phase2_describe(metrics, self.cfg.eps)
-
-    def divergence(self, state: FlatPhase2State, stats: Phase2Stats) -> str | None:
-        """Why this epoch's result must not be kept, or None."""
-        return phase2_divergence(state.learner, stats)
-
 
 _jit_init = jax.jit(FlatPhase2Trainer._init, static_argnums=0)
-_jit_train_epoch = jax.jit(FlatPhase2Trainer._train_epoch, static_argnums=0, donate_argnums=1)
-_jit_evaluate = jax.jit(FlatPhase2Trainer._evaluate, static_argnums=(0, 3))
 
 
 def make_phase2_trainer(skills: Any, cfg: Phase2Config) -> Phase2Trainer | FlatPhase2Trainer:

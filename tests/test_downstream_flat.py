@@ -39,14 +39,13 @@ def test_the_factory_picks_the_flat_trainer_and_it_chooses_unit_length_skills(me
 def test_a_collect_plays_one_episode_per_env_with_at_most_n_attempts(metra_phase2):
     trainer, _, state = metra_phase2
     cfg, skill_steps = trainer.cfg, trainer.phase1.cfg.n
-    new, (steps, transitions, episodes, success, distance) = jax.jit(trainer._collect, static_argnums=())(
-        state, jnp.float32(0.2), jnp.bool_(True), jax.random.key(1))
-    assert int(episodes) == cfg.num_envs
-    assert 0 < int(steps) <= cfg.num_envs * cfg.n * skill_steps
+    new, totals = jax.jit(trainer._collect)(state, jnp.float32(0.2), jnp.bool_(True), jax.random.key(1))
+    assert int(totals.episodes) == cfg.num_envs
+    assert 0 < int(totals.env_steps) <= cfg.num_envs * cfg.n * skill_steps
     # every attempt lasts the skill's length unless it ends the episode by a reset
-    assert int(transitions) <= cfg.num_envs * cfg.n and int(transitions) >= cfg.num_envs
-    assert int(new.replay.size) == int(transitions)
-    assert 0.0 <= float(success) <= 1.0 and np.isfinite(float(distance))
+    assert cfg.num_envs <= int(totals.transitions) <= cfg.num_envs * cfg.n
+    assert int(new.replay.size) == int(totals.transitions)
+    assert 0.0 <= float(totals.success()) <= 1.0 and np.isfinite(float(totals.mean_distance()))
     # a stored attempt's next state is skill_steps actions from its first: the skill moved the point mass
     rows = jax.tree.map(lambda x: np.asarray(x[: int(new.replay.size)]), new.replay.data)
     assert np.abs(rows.next_obs[:, :2] - rows.obs[:, :2]).max() > 1e-3
