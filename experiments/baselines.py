@@ -81,7 +81,7 @@ def evaluate_run(run_dir: Path, preset: str, seed: int) -> dict:
     agent, epoch, state = run.load_run(run_dir)
     algo = algorithm_of(agent.cfg).name
     key = jax.random.key(1000 + seed)
-    if algo == "he":
+    if algo in run.GOAL_SPACE_ALGORITHMS:  # HE and GCRL: skill_paths of the hierarchy
         figures = {"coverage_cells": coverage_cells(*agent.skill_paths(state, key, COVERAGE_SKILLS)),
                    "posterior_std": None}
     else:
