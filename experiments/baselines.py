@@ -48,6 +48,8 @@ class Args:
     out: str = "benchmarks/results/baselines_cpu.json"
     charts: str = "docs/img"
     """Where the charts go (baselines_<env>.png); empty draws none."""
+    report_only: bool = False
+    """Train and evaluate nothing: print the table and draw the charts of the rows in ``--out``."""
 
 
 def train_or_resume(base: Path, preset: str, seed: int, epochs: int | None) -> Path:
@@ -107,7 +109,7 @@ def phase2_of(run_dir: Path, seed: int, episodes: int = 400) -> dict:
 def main(args: Args) -> None:
     out = Path(args.out)
     rows = json.loads(out.read_text())["rows"] if out.exists() else []
-    for preset in args.presets:
+    for preset in [] if args.report_only else args.presets:
         for seed in args.seeds:
             run_dir = train_or_resume(Path(args.base), preset, seed, args.epochs)
             if args.phase2:
