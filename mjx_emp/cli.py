@@ -163,7 +163,7 @@ def evaluate(exp: EvalExperiment) -> dict:
     algorithms = {algorithm_of(run.read_run_config(Path(d), "run_dirs")).name for d in exp.run_dirs}
     if len(algorithms) > 1:
         raise ConfigError(f"run_dirs: runs of one algorithm at a time (they are aggregated); got {sorted(algorithms)}")
-    if not algorithms <= {"he", "gcrl"}:  # flat skill learners: no goal spaces to report
+    if not algorithms <= set(run.GOAL_SPACE_ALGORITHMS):  # flat skill learners: no goal spaces to report
         return evaluate_skills(exp, skill_figures)
     runs = []
     for run_dir in exp.run_dirs:

@@ -81,12 +81,74 @@ class Phase2Loop:
     """What every phase-2 trainer (over HE's or a flat learner's skills) does the same way: the
     epoch (``iterations`` collect-and-update items, then ``eval_rounds`` greedy items, one
     jitted call), the paper's figures of the greedy policy, the metrics line, its summary and
-    the divergence check. A subclass provides ``cfg``, ``trace_name`` and
-    ``_collect(state, noise, store, key) -> (state, CollectTotals)`` and
-    ``_update(state, key) -> (state, [critic loss, actor loss])``."""
+    the divergence check, and the goal-conditioned DDPG learner over its actions (networks,
+    fresh state, update). A subclass provides ``cfg``, ``phase1`` (with ``env`` and
+    ``initial_obs``), ``trace_name``, ``action_size``, ``greedy_actions(state)`` and
+    ``_collect(state, noise, store, key) -> (state, CollectTotals)``."""
 
     cfg: Phase2Config
     trace_name: str = TRAIN_EPOCH_TRACE
+
+    @property
+    def env(self):
+        return self.phase1.env
+
+    @property
+    def action_size(self) -> int:
+        """Size of the phase-2 policy's action (a subgoal, or a skill z)."""
+        raise NotImplementedError
+
+    def greedy_actions(self, state: Any):
+        """(actor, obs [B, ...], goal [B, ...]) -> the greedy actions the critic is trained on."""
+        raise NotImplementedError
+
+    @functools.cached_property
+    def actor_net(self) -> MLP:
+        return MLP(tuple(self.cfg.hidden), self.action_size)
+
+    @functools.cached_property
+    def critic_net(self) -> MLP:
+        return MLP(tuple(self.cfg.hidden), 1)
+
+    @functools.cached_property
+    def optimizers(self) -> tuple[optax.GradientTransformation, optax.GradientTransformation]:
+        return optax.adam(self.cfg.actor_lr), optax.adam(self.cfg.critic_lr)
+
+    def q_value(self, params: Params, obs: jax.Array, goal: jax.Array, action: jax.Array) -> jax.Array:
+        """Q(s, goal, action) of the phase-2 critic."""
+        return goal_conditioned_q(self.critic_net, self.env, params, obs, goal, action)
+
+    def region(self) -> tuple[np.ndarray, np.ndarray]:
+        """The goal region as absolute (low, high) corners in goal space."""
+        centre = self.env.goal_of_obs(self.phase1.initial_obs) + np.asarray(self.cfg.region_offset)
+        half = np.asarray(self.cfg.region) / 2
+        return centre - half, centre + half
+
+    def fresh_learner(self, actor_key: jax.Array, critic_key: jax.Array) -> tuple[DDPGLearner, ReplayBuffer]:
+        """New phase-2 actor and critic (targets equal to them) and an empty replay."""
+        env = self.env
+        obs, goal = jnp.asarray(self.phase1.initial_obs), jnp.zeros(env.goal_size)
+        action = jnp.zeros(self.action_size)
+        actor = self.actor_net.init(actor_key, goal_features(env, obs, goal))
+        critic = self.critic_net.init(critic_key, jnp.concatenate([goal_features(env, obs, goal), action]))
+        actor_tx, critic_tx = self.optimizers
+        learner = DDPGLearner(actor, critic, actor, critic, actor_tx.init(actor), critic_tx.init(critic))
+        row = GoalTransition(obs, goal, action, obs, jnp.zeros((), bool))
+        return learner, replay_init(row, self.cfg.replay_capacity)
+
+    def _update(self, state: Any, key: jax.Array) -> tuple[Any, jax.Array]:
+        """``grad_steps`` DDPG steps on replayed attempts (phase 1's learner, one level up)."""
+        cfg = self.cfg
+        actor_tx, critic_tx = self.optimizers
+        act = self.greedy_actions(state)
+
+        def step(learner: DDPGLearner, step_key):
+            batch = replay_sample(state.replay, step_key, cfg.batch_size)
+            losses = ddpg_losses(act, self.q_value, learner, batch, self.env, cfg.sigma, cfg.gamma)
+            return ddpg_step(learner, losses, actor_tx, critic_tx, cfg.tau)
+
+        learner, losses = jax.lax.scan(step, state.learner, jax.random.split(key, cfg.grad_steps))
+        return state.replace(learner=learner), losses.mean(axis=0)
 
     def _train_epoch(self, state: Any) -> tuple[Any, Phase2Stats]:
         count_trace(self.trace_name)
@@ -199,29 +261,14 @@ class Phase2Trainer(Phase2Loop):
         object.__setattr__(self, "hierarchy", hierarchy)
 
     @property
-    def env(self):
-        return self.phase1.env
-
-    @property
     def level(self) -> int:
         """The added level's index: k, on top of the k skill levels."""
         return self.phase1.cfg.k
 
-    @functools.cached_property
-    def actor_net(self) -> MLP:
-        return MLP(tuple(self.cfg.hidden), self.env.goal_size)
-
-    @functools.cached_property
-    def critic_net(self) -> MLP:
-        return MLP(tuple(self.cfg.hidden), 1)
-
-    @functools.cached_property
-    def optimizers(self) -> tuple[optax.GradientTransformation, optax.GradientTransformation]:
-        return optax.adam(self.cfg.actor_lr), optax.adam(self.cfg.critic_lr)
-
-    def q_value(self, params: Params, obs: jax.Array, goal: jax.Array, action: jax.Array) -> jax.Array:
-        """Q(s, goal, subgoal) of the phase-2 critic."""
-        return goal_conditioned_q(self.critic_net, self.env, params, obs, goal, action)
+    @property
+    def action_size(self) -> int:
+        """The added level's action: a subgoal in goal space."""
+        return self.env.goal_size
 
     # ---- state ----------------------------------------------------------------------
     def init(self, skills_state: TrainState, key: jax.Array | None = None) -> Phase2State:
@@ -229,27 +276,15 @@ class Phase2Trainer(Phase2Loop):
         return _jit_init(self, skills_state, jax.random.key(self.cfg.seed) if key is None else key)
 
     def _init(self, skills_state: TrainState, key: jax.Array) -> Phase2State:
-        env, cfg = self.env, self.cfg
-        obs, goal = jnp.asarray(self.phase1.initial_obs), jnp.zeros(env.goal_size)
         key, actor_key, critic_key = jax.random.split(key, 3)
-        actor = self.actor_net.init(actor_key, goal_features(env, obs, goal))
-        critic = self.critic_net.init(critic_key, jnp.concatenate([goal_features(env, obs, goal), goal]))
-        actor_tx, critic_tx = self.optimizers
-        learner = DDPGLearner(actor, critic, actor, critic, actor_tx.init(actor), critic_tx.init(critic))
-        row = GoalTransition(obs, goal, goal, obs, jnp.zeros((), bool))
+        learner, replay = self.fresh_learner(actor_key, critic_key)
         return Phase2State(
             skill_actors=tuple(g.actor for g in skills_state.policies), goal_space_actors=tuple(g.actor for g in skills_state.goal_spaces),
-            learner=learner, replay=replay_init(row, cfg.replay_capacity), key=key,
+            learner=learner, replay=replay, key=key,
             epoch=jnp.zeros((), jnp.int32), env_steps=StepCounter.zero(),
         )
 
     # ---- episodes -------------------------------------------------------------------
-    def region(self) -> tuple[np.ndarray, np.ndarray]:
-        """The goal region as absolute (low, high) corners in goal space."""
-        centre = self.env.goal_of_obs(self.phase1.initial_obs) + np.asarray(self.cfg.region_offset)
-        half = np.asarray(self.cfg.region) / 2
-        return centre - half, centre + half
-
     def start(self, _: Any, key: jax.Array):
         """A new episode: the task's initial state, with a goal uniform in the region."""
         env_key, goal_key = jax.random.split(key)
@@ -306,25 +341,10 @@ class Phase2Trainer(Phase2Loop):
         return state.replace(replay=replay, env_steps=state.env_steps.add(totals.env_steps)), totals
 
     # ---- learning -------------------------------------------------------------------
-    def losses(self, learner: DDPGLearner, box: Params, batch: GoalTransition):
-        """(critic loss, actor loss) functions of one phase-2 minibatch (DDPG, as in phase 1)."""
-        policy = self.hierarchy.policies[self.level]
-        return ddpg_losses(
-            lambda actor, obs, goal: greedy_batch(policy, actor, box)(obs, goal),
-            self.q_value, learner, batch, self.env, self.cfg.sigma, self.cfg.gamma,
-        )
-
-    def _update(self, state: Phase2State, key: jax.Array) -> tuple[Phase2State, jax.Array]:
-        cfg = self.cfg
-        actor_tx, critic_tx = self.optimizers
-        box = state.goal_space_actors[self.level - 1]
-
-        def step(learner: DDPGLearner, step_key):
-            batch = replay_sample(state.replay, step_key, cfg.batch_size)
-            return ddpg_step(learner, self.losses(learner, box, batch), actor_tx, critic_tx, cfg.tau)
-
-        learner, losses = jax.lax.scan(step, state.learner, jax.random.split(key, cfg.grad_steps))
-        return state.replace(learner=learner), losses.mean(axis=0)
+    def greedy_actions(self, state: Phase2State):
+        """The added level's greedy subgoals, squashed into the top goal space of ``state``'s skills."""
+        policy, box = self.hierarchy.policies[self.level], state.goal_space_actors[self.level - 1]
+        return lambda actor, obs, goal: greedy_batch(policy, actor, box)(obs, goal)
 
 
 _jit_init = jax.jit(Phase2Trainer._init, static_argnums=0)

@@ -18,13 +18,10 @@ steps in which environments whose episode has ended idle (their steps do not cou
 from __future__ import annotations
 
 import dataclasses
-import functools
 from typing import Any
 
 import jax
 import jax.numpy as jnp
-import numpy as np
-import optax
 from flax import struct
 
 from mjx_emp.algos.he.config import Phase2Config, check_phase2_config
@@ -32,9 +29,9 @@ from mjx_emp.algos.skills.agent import SkillAgent, SkillState
 from mjx_emp.counters import StepCounter
 from mjx_emp.downstream import Phase2Loop, Phase2Trainer
 from mjx_emp.envs.env import EnvState
-from mjx_emp.learners.ddpg import DDPGLearner, GoalTransition, ddpg_losses, ddpg_step
-from mjx_emp.nets import MLP, goal_conditioned_q, goal_features
-from mjx_emp.replay import ReplayBuffer, flatten_rows, replay_init, replay_insert, replay_sample
+from mjx_emp.learners.ddpg import DDPGLearner, GoalTransition
+from mjx_emp.nets import goal_features
+from mjx_emp.replay import ReplayBuffer, flatten_rows, replay_insert
 from mjx_emp.rollout.collect import CollectTotals
 
 TRAIN_EPOCH_TRACE = "downstream_flat.train_epoch"
@@ -82,24 +79,13 @@ class FlatPhase2Trainer(Phase2Loop):
         check_phase2_config(self.cfg, self.phase1.env.goal_size)
 
     @property
-    def env(self):
-        return self.phase1.env
+    def action_size(self) -> int:
+        """The phase-2 action: a skill z."""
+        return self.phase1.cfg.skill_dim
 
-    @functools.cached_property
-    def actor_net(self) -> MLP:
-        return MLP(tuple(self.cfg.hidden), self.phase1.cfg.skill_dim)
-
-    @functools.cached_property
-    def critic_net(self) -> MLP:
-        return MLP(tuple(self.cfg.hidden), 1)
-
-    @functools.cached_property
-    def optimizers(self) -> tuple[optax.GradientTransformation, optax.GradientTransformation]:
-        return optax.adam(self.cfg.actor_lr), optax.adam(self.cfg.critic_lr)
-
-    def q_value(self, params: Params, obs: jax.Array, goal: jax.Array, skill: jax.Array) -> jax.Array:
-        """Q(s, goal, z) of the phase-2 critic."""
-        return goal_conditioned_q(self.critic_net, self.env, params, obs, goal, skill)
+    def greedy_actions(self, state: FlatPhase2State):
+        """The greedy skills the critic is trained on."""
+        return self.choose
 
     def as_skill(self, unit: jax.Array) -> jax.Array:
         """A point of [-1, 1]^d as a skill the learner trained: itself, or for METRA its direction."""
@@ -123,24 +109,10 @@ class FlatPhase2Trainer(Phase2Loop):
         return _jit_init(self, skills_state, jax.random.key(self.cfg.seed) if key is None else key)
 
     def _init(self, skills_state: SkillState, key: jax.Array) -> FlatPhase2State:
-        env, cfg = self.env, self.cfg
-        obs, goal = jnp.asarray(self.phase1.initial_obs), jnp.zeros(env.goal_size)
-        skill = jnp.zeros(self.phase1.cfg.skill_dim)
         key, actor_key, critic_key = jax.random.split(key, 3)
-        actor = self.actor_net.init(actor_key, goal_features(env, obs, goal))
-        critic = self.critic_net.init(critic_key, jnp.concatenate([goal_features(env, obs, goal), skill]))
-        actor_tx, critic_tx = self.optimizers
-        learner = DDPGLearner(actor, critic, actor, critic, actor_tx.init(actor), critic_tx.init(critic))
-        row = GoalTransition(obs, goal, skill, obs, jnp.zeros((), bool))
-        return FlatPhase2State(skill_actor=skills_state.sac.actor, learner=learner,
-                               replay=replay_init(row, cfg.replay_capacity), key=key,
+        learner, replay = self.fresh_learner(actor_key, critic_key)
+        return FlatPhase2State(skill_actor=skills_state.sac.actor, learner=learner, replay=replay, key=key,
                                epoch=jnp.zeros((), jnp.int32), env_steps=StepCounter.zero())
-
-    def region(self) -> tuple[np.ndarray, np.ndarray]:
-        """The goal region as absolute (low, high) corners in goal space."""
-        centre = self.env.goal_of_obs(self.phase1.initial_obs) + np.asarray(self.cfg.region_offset)
-        half = np.asarray(self.cfg.region) / 2
-        return centre - half, centre + half
 
     # ---- episodes -------------------------------------------------------------------
     def _collect(self, state: FlatPhase2State, noise: jax.Array, store: jax.Array, key: jax.Array):
@@ -199,20 +171,6 @@ class FlatPhase2Trainer(Phase2Loop):
             flip_resets=carry.env.flip_resets.sum(),
         )
         return state.replace(replay=replay, env_steps=state.env_steps.add(steps)), totals
-
-    # ---- learning and the epoch ------------------------------------------------------
-    def _update(self, state: FlatPhase2State, key: jax.Array) -> tuple[FlatPhase2State, jax.Array]:
-        cfg = self.cfg
-        actor_tx, critic_tx = self.optimizers
-
-        def step(learner: DDPGLearner, step_key):
-            batch = replay_sample(state.replay, step_key, cfg.batch_size)
-            losses = ddpg_losses(self.choose, self.q_value, learner, batch, self.env, cfg.sigma, cfg.gamma)
-            return ddpg_step(learner, losses, actor_tx, critic_tx, cfg.tau)
-
-        learner, losses = jax.lax.scan(step, state.learner, jax.random.split(key, cfg.grad_steps))
-        return state.replace(learner=learner), losses.mean(axis=0)
-
 
 _jit_init = jax.jit(FlatPhase2Trainer._init, static_argnums=0)
 
