@@ -106,6 +106,18 @@ def phase2_of(run_dir: Path, seed: int, episodes: int = 400) -> dict:
     return {"phase2_min_distance": figures["min_distance"], "phase2_success": figures["success"]}
 
 
+def merge_row(out: Path, row: dict) -> list[dict]:
+    """Replace OUT's row for (preset, seed) with ROW, re-reading OUT first so that two
+    comparison scripts running side by side keep each other's rows; written atomically."""
+    rows = json.loads(out.read_text())["rows"] if out.exists() else []
+    rows = [r for r in rows if (r["preset"], r["seed"]) != (row["preset"], row["seed"])] + [row]
+    out.parent.mkdir(parents=True, exist_ok=True)
+    partial = out.with_name(out.name + ".partial")
+    partial.write_text(json.dumps({"backend": jax.default_backend(), "rows": rows}, indent=1))
+    partial.replace(out)
+    return rows
+
+
 def main(args: Args) -> None:
     out = Path(args.out)
     rows = json.loads(out.read_text())["rows"] if out.exists() else []
@@ -115,10 +127,8 @@ def main(args: Args) -> None:
             if args.phase2:
                 train_phase2(run_dir)
             row = evaluate_run(run_dir, preset, seed)
-            rows = [r for r in rows if (r["preset"], r["seed"]) != (preset, seed)] + [row]
             print(json.dumps(row), flush=True)
-            out.parent.mkdir(parents=True, exist_ok=True)
-            out.write_text(json.dumps({"backend": jax.default_backend(), "rows": rows}, indent=1))
+            rows = merge_row(out, row)
     print("| preset | seeds | env steps | wall s (mean) | coverage cells, mean ± std | posterior std | "
           "phase-2 min distance, mean ± std |")
     print("|---|---|---|---|---|---|---|")
