@@ -109,26 +109,28 @@ def rollout(cfg: RolloutExperiment) -> None:
 
 def plot(exp: PlotExperiment) -> None:
     """Draw a run's pictures into RUN_DIR/plots/ and print their paths."""
-    from mjx_emp.viz.plots import plot_run
+    from mjx_emp.viz.plots import plot_run, plot_skill_run
 
     run_dir = Path(exp.run_dir)
     if not (run_dir / run.METRICS_FILE).exists():
         raise ConfigError(f"run_dir: {str(run_dir)!r} has no {run.METRICS_FILE}; is it a run directory?")
-    run.require_goal_spaces(run_dir, "plot")
-    for path in plot_run(run_dir):
+    draw = plot_run if run.has_goal_spaces(run_dir) else plot_skill_run
+    for path in draw(run_dir):
         print(path)
 
 
 def render(exp: RenderExperiment) -> None:
-    """Write a GIF of a run's greedy top-level skill chain (or phase-2 policy), every level's goal drawn."""
+    """Write a GIF of a run's greedy top-level skill chain (or phase-2 policy), every level's goal drawn;
+    for a flat skill learner, its greedy skills from the prior one after another."""
     for name in ("steps", "width", "height"):
         if getattr(exp, name) < 1:
             raise ConfigError(f"{name}: must be >= 1; got {getattr(exp, name)}")
     if not exp.fps > 0:
         raise ConfigError(f"fps: must be > 0; got {exp.fps}")
     import jax
+    import numpy as np
 
-    from mjx_emp.viz.render import record_rollout, render_frames, write_gif
+    from mjx_emp.viz.render import Recording, record_rollout, render_frames, write_gif
 
     if exp.phase2:
         phase2_dir = Path(exp.run_dir) / run.PHASE2_SUBDIR
@@ -137,10 +139,13 @@ def render(exp: RenderExperiment) -> None:
                               f"`mjx-emp phase2 {exp.run_dir}`")
         trainer, epoch, state = run.load_phase2(phase2_dir)
         recording = record_rollout(trainer.greedy_episodes(state), jax.random.key(exp.seed), exp.steps)
-    else:
-        run.require_goal_spaces(Path(exp.run_dir), "render")
+    elif run.has_goal_spaces(Path(exp.run_dir)):
         trainer, epoch, state = run.load_run(Path(exp.run_dir))
         recording = record_rollout(trainer.skill_chain(state), jax.random.key(exp.seed), exp.steps)
+    else:  # a flat skill learner: greedy skills from the prior, one after another
+        trainer, epoch, state = run.load_run(Path(exp.run_dir))
+        qpos, mocap = trainer.record_skills(state, jax.random.key(exp.seed), exp.steps)
+        recording = Recording(qpos, mocap, np.zeros((exp.steps, 0, len(trainer.env.goal_qpos))))
     frames = render_frames(trainer.env, recording, exp.width, exp.height, exp.distance)
     default_name = "phase2.gif" if exp.phase2 else "skills.gif"
     out = write_gif(frames, Path(exp.out or Path(exp.run_dir) / default_name), exp.fps)

@@ -13,12 +13,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from PIL import Image
 from test_checkpoint import assert_bitwise_equal, kill_when
 from tiny import TINY, mjx_emp, run_cli
 
 from mjx_emp.algos.he.agent import Trainer
 from mjx_emp.algos.he.config import GcrlConfig
-from mjx_emp.algos.registry import config_to_json
 from mjx_emp.algos.skills import objectives as obj
 from mjx_emp.algos.skills.agent import SkillAgent
 from mjx_emp.algos.skills.config import DadsConfig, DiaynConfig, HidioConfig, MetraConfig
@@ -220,10 +220,29 @@ def test_bad_skill_config_names_the_field(change, message):
     assert message in str(err.value)
 
 
-@pytest.mark.parametrize("command", ["plot", "render"])
-def test_commands_that_need_goal_spaces_refuse_a_flat_learners_run(command, tmp_path):
-    (tmp_path / "config.json").write_text(json.dumps(config_to_json(tiny("metra"))))
-    (tmp_path / "metrics.jsonl").write_text("")
-    result = run_cli(command, str(tmp_path))
-    assert result.returncode == 2, result.stderr
-    assert f"is a metra run; `mjx-emp {command}` works on runs of ['he', 'gcrl']" in result.stderr
+def test_plot_and_render_draw_a_flat_learners_run(tmp_path):
+    run_dir = tmp_path / "metra"
+    run.train(TrainExperiment(config=tiny("metra"), run_dir=str(run_dir)))
+    plotted = run_cli("plot", str(run_dir))
+    assert plotted.returncode == 0, plotted.stderr
+    names = ["skill_learning.png", "skills_epoch0.png", "skills.png"]
+    assert [line.rsplit("/", 1)[-1] for line in plotted.stdout.split()] == names
+    for name in names:
+        with Image.open(run_dir / "plots" / name) as image:
+            assert image.format == "PNG" and np.asarray(image.convert("L")).std() > 0
+    rendered = run_cli("render", str(run_dir), "--steps", "6", "--width", "64", "--height", "48")
+    if rendered.returncode == 3:  # no offscreen OpenGL on this machine
+        pytest.skip(rendered.stderr.strip())
+    assert rendered.returncode == 0, rendered.stderr
+    with Image.open(run_dir / "skills.gif") as gif:
+        assert gif.n_frames == 6 and gif.size == (64, 48)
+
+
+def test_recorded_skills_move_and_restart_from_the_start_state_every_n_actions():
+    agent = SkillAgent(tiny("metra"))
+    n = agent.cfg.n
+    qpos, mocap = agent.record_skills(agent.init(), jax.random.key(3), 2 * n + 1)
+    assert qpos.shape == (2 * n + 1, agent.env.mj_model.nq) and mocap.shape[0] == 2 * n + 1
+    start = np.asarray(agent.env.reset(jax.random.key(0)).data.qpos)
+    assert np.abs(qpos[n - 2] - start).max() > 1e-3  # the skill moved the point mass ...
+    np.testing.assert_allclose(qpos[n - 1], start, atol=1e-6)  # ... and its n-th action began a new episode

@@ -261,16 +261,12 @@ GOAL_SPACE_ALGORITHMS = ("he", "gcrl")
 """Algorithms whose runs have goal spaces (what plot and render draw)."""
 
 
-def require_goal_spaces(run_dir: Path, command: str, field: str = "run_dir") -> None:
-    """Refuse, naming the run's algorithm, a command that needs goal spaces on a flat skill learner's run
-    (a directory without config.json is left to the command, which says what it lacks)."""
+def has_goal_spaces(run_dir: Path, field: str = "run_dir") -> bool:
+    """Whether RUN_DIR's algorithm learns goal spaces (HE, GCRL) rather than flat skills; a
+    directory without config.json counts as one, left to the command to say what it lacks."""
     if not (Path(run_dir) / CONFIG_FILE).exists():
-        return
-    name = algorithm_of(read_run_config(Path(run_dir), field)).name
-    if name not in GOAL_SPACE_ALGORITHMS:
-        raise ConfigError(f"{field}: {str(run_dir)!r} is a {name} run; `mjx-emp {command}` works on runs of "
-                          f"{list(GOAL_SPACE_ALGORITHMS)} (flat skill learners: `mjx-emp eval` reports their coverage, "
-                          f"`mjx-emp phase2` trains on their skills)")
+        return True
+    return algorithm_of(read_run_config(Path(run_dir), field)).name in GOAL_SPACE_ALGORITHMS
 
 
 def train_phase2(exp: Phase2Experiment):

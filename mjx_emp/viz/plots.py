@@ -1,6 +1,7 @@
 """Pictures of a run (matplotlib, PNG): goal-space growth over epochs, the learned
 goal-space boxes at the start state drawn over the arena with sample trajectories, and
-phase 2's learning curves."""
+phase 2's learning curves; for the flat skill learners (no goal spaces), their learning
+curves and the paths of the greedy skills that METRA's coverage count reads."""
 
 from __future__ import annotations
 
@@ -80,12 +81,36 @@ def plot_phase2_curves(metrics: list[dict], eps: float, path: Path) -> Path:
     return _save(fig, path)
 
 
+SKILL_DIAGNOSTIC = {"diayn": "posterior_std", "hidio": "posterior_std", "metra": "dual_lambda"}
+"""The per-epoch figure each flat skill learner adds to reward and displacement."""
+
+
+def plot_skill_learning(metrics: list[dict], path: Path) -> Path:
+    """A flat skill learner's mean intrinsic reward, skill displacement and (DIAYN, HIDIO:
+    posterior std; METRA: dual lambda) against env steps, saved as PNG."""
+    plt = _pyplot()
+
+    if not metrics:
+        raise ValueError("no epochs to plot: metrics is empty")
+    diagnostic = SKILL_DIAGNOSTIC.get(metrics[0]["algorithm"])
+    names = ["reward", "displacement"] + ([diagnostic] if diagnostic else [])
+    steps = [m["env_steps"] for m in metrics]
+    fig, axes = plt.subplots(len(names), 1, sharex=True, figsize=(7, 2.2 * len(names) + 0.6))
+    for ax, name in zip(axes, names):
+        ax.plot(steps, [float("nan") if m[name] is None else m[name] for m in metrics])
+        ax.set_ylabel(name.replace("_", " "))
+    axes[0].set_title(f"{metrics[0]['algorithm']} phase 1")
+    axes[-1].set_xlabel("env steps")
+    fig.tight_layout()
+    return _save(fig, path)
+
+
 def plot_goal_space_boxes(start: list[float], boxes: list[dict], trajectories: list, path: Path,
                           title: str = "") -> Path:
     """Each level's goal-space box around h(s0) over the arena, with trajectories of h(s).
 
     ``boxes`` are ``Trainer.goal_spaces`` entries (shift and half_width relative to
-    h(s0)); ``trajectories`` are [T, d] arrays of h(s). 1-D goal spaces are drawn as
+    h(s0)), none for a flat skill learner; ``trajectories`` are [T, d] arrays of h(s). 1-D goal spaces are drawn as
     intervals on the x axis, with time running upward for the trajectories.
     """
     from matplotlib.patches import Rectangle
@@ -130,18 +155,13 @@ def plot_run(run_dir: Path, chains: int = 8, skills_per_chain: int = 1) -> list[
     """
     import jax
 
-    from mjx_emp.algos.he.config import Phase2Config
     from mjx_emp.run.checkpoint import CHECKPOINT_SUBDIR
-    from mjx_emp.run.directory import PHASE2_SUBDIR, load_run, read_run_config
+    from mjx_emp.run.directory import load_run
     from mjx_emp.viz.render import first_skills, record_rollout
 
     run_dir = Path(run_dir)
     paths = [plot_goal_space_growth(read_metrics(run_dir), run_dir / "plots" / "goal_space_growth.png")]
-    phase2_dir = run_dir / PHASE2_SUBDIR
-    phase2_metrics = read_metrics(phase2_dir) if (phase2_dir / METRICS_FILE).exists() else []
-    if phase2_metrics:
-        eps = read_run_config(phase2_dir, "run_dir", Phase2Config).eps
-        paths.append(plot_phase2_curves(phase2_metrics, eps, run_dir / "plots" / "phase2_curves.png"))
+    paths += _phase2_plot(run_dir)
     if not (run_dir / CHECKPOINT_SUBDIR).exists():
         return paths
     trainer, epoch, state = load_run(run_dir)
@@ -155,4 +175,46 @@ def plot_run(run_dir: Path, chains: int = 8, skills_per_chain: int = 1) -> list[
         trajectories = [r.qpos[:, list(trainer.env.goal_qpos)] for r in recordings]
         paths.append(plot_goal_space_boxes(start, trainer.goal_spaces(snapshot), trajectories,
                                            run_dir / "plots" / name, title=f"{trainer.cfg.env}, epoch {shown_epoch}"))
+    return paths
+
+
+def _phase2_plot(run_dir: Path) -> list[Path]:
+    """RUN_DIR/phase2's learning curves as RUN_DIR/plots/phase2_curves.png, if it has any."""
+    from mjx_emp.algos.he.config import Phase2Config
+    from mjx_emp.run.directory import PHASE2_SUBDIR, read_run_config
+
+    phase2_dir = run_dir / PHASE2_SUBDIR
+    phase2_metrics = read_metrics(phase2_dir) if (phase2_dir / METRICS_FILE).exists() else []
+    if not phase2_metrics:
+        return []
+    eps = read_run_config(phase2_dir, "run_dir", Phase2Config).eps
+    return [plot_phase2_curves(phase2_metrics, eps, run_dir / "plots" / "phase2_curves.png")]
+
+
+def plot_skill_run(run_dir: Path, skills: int = 48) -> list[Path]:
+    """Every picture of a flat skill learner's run directory, written to RUN_DIR/plots/.
+
+    Its learning curves; with checkpoints, the paths of ``skills`` greedy skills from the
+    initial state before training (the run's seed rebuilds epoch 0) and at the newest
+    checkpoint, titled with their coverage count; phase 2's curves where RUN_DIR/phase2 exists.
+    """
+    import jax
+
+    from mjx_emp.metrics import coverage_cells
+    from mjx_emp.run.checkpoint import CHECKPOINT_SUBDIR
+    from mjx_emp.run.directory import load_run
+
+    run_dir = Path(run_dir)
+    paths = [plot_skill_learning(read_metrics(run_dir), run_dir / "plots" / "skill_learning.png")]
+    paths += _phase2_plot(run_dir)
+    if not (run_dir / CHECKPOINT_SUBDIR).exists():
+        return paths
+    agent, epoch, state = load_run(run_dir)
+    start = np.asarray(agent.env.goal_of_obs(agent.initial_obs)).tolist()
+    for name, snapshot, shown_epoch in (("skills_epoch0.png", agent.init(), 0), ("skills.png", state, epoch)):
+        positions, mask = agent.skill_paths(snapshot, jax.random.key(0), skills)
+        trajectories = [positions[mask[:, i], i] for i in range(skills)]
+        title = (f"{agent.method}, {agent.cfg.env}, epoch {shown_epoch}: {skills} greedy skills, "
+                 f"{coverage_cells(positions, mask)} cells")
+        paths.append(plot_goal_space_boxes(start, [], trajectories, run_dir / "plots" / name, title=title))
     return paths

@@ -1,11 +1,12 @@
-"""Skill videos: a trained hierarchical agent from a checkpoint, rendered offscreen.
+"""Skill videos: a trained agent from a checkpoint, rendered offscreen.
 
 The agent runs the same greedy chain of top-level skills that fills the start-state
 buffers: from the initial state, each top-level skill is drawn from the top goal space and
 executed by the levels below without exploration noise. Or, after phase 2, the phase-2
 policy reaches goals from its region, and the goal is drawn as one more level's marker.
 Every primitive step becomes a frame, with each level's current subgoal drawn as a
-coloured sphere (level 0 yellow, then green, blue, magenta). Rendering uses MuJoCo's offscreen renderer, headless via EGL.
+coloured sphere (level 0 yellow, then green, blue, magenta). A flat skill learner
+(no goals to draw) runs its greedy skills from the prior one after another. Rendering uses MuJoCo's offscreen renderer, headless via EGL.
 """
 
 from __future__ import annotations

@@ -341,6 +341,21 @@ class SkillAgent:
                                      self.env.goal_of_obs(steps.next_obs)])
         return positions, jnp.concatenate([jnp.ones((1, skills), bool), alive])
 
+    def record_skills(self, state: SkillState, key: jax.Array, steps: int) -> tuple[np.ndarray, np.ndarray]:
+        """One environment running greedy skills from the prior, one after another, each from
+        a fresh start state: its joint positions [steps, nq] and mocap bodies [steps, nmocap, 3]
+        after every primitive step (what ``mjx-emp render`` draws), in one jitted scan."""
+        qpos, mocap = _jit_record_skills(self, state, key, steps)
+        return np.asarray(qpos), np.asarray(mocap)
+
+    def _record_skills(self, state: SkillState, key: jax.Array, steps: int):
+        def one_step(rollout, _):
+            rollout, _ = flat_rollout(self.env, self.greedy, state.sac.actor, self.start, None, rollout, 1, self.cfg.n)
+            return rollout, (rollout.env.data.qpos[0], rollout.env.data.mocap_pos[0])
+
+        _, (qpos, mocap) = jax.lax.scan(one_step, flat_init(self.env, self.start, None, key, 1), None, length=steps)
+        return qpos, mocap
+
     def posterior_std(self, state: SkillState, key: jax.Array, rows: int = 4096) -> float | None:
         """DIAYN and HIDIO: the mean standard deviation of q(z | ...) over ``rows`` replayed
         transitions (Levy et al.'s diagnostic: it stays large when skills overlap); None for
@@ -396,3 +411,4 @@ class SkillAgent:
 _jit_init = jax.jit(SkillAgent._init, static_argnums=0)
 _jit_train_epoch = jax.jit(SkillAgent._train_epoch, static_argnums=0, donate_argnums=1)
 _jit_skill_paths = jax.jit(SkillAgent._skill_paths, static_argnums=(0, 3))
+_jit_record_skills = jax.jit(SkillAgent._record_skills, static_argnums=(0, 3))
