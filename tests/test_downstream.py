@@ -12,6 +12,7 @@ from tiny import TINY, TINY_PHASE2, tiny_after_two_epochs
 
 from mjx_emp.algos.he.config import Phase2Config, check_phase2_config
 from mjx_emp.algos.he.presets import PHASE2_PRESETS, PRESETS, phase2_preset_for
+from mjx_emp.algos.registry import all_presets
 from mjx_emp.downstream import TRAIN_EPOCH_TRACE, Phase2Trainer
 from mjx_emp.envs.registry import DOMAINS
 from mjx_emp.errors import ConfigError
@@ -137,5 +138,11 @@ def test_every_table_2_preset_builds_on_a_phase_1_preset_of_the_same_domain():
     assert phase2_preset_for(dataclasses.replace(PRESETS["ant-field-cpu-k1"][1], seed=3)) == "ant-field-cpu-k1"
     assert phase2_preset_for(PRESETS["point-mass-k2"][1]) == "point-mass-wide-k2"
     assert phase2_preset_for(dataclasses.replace(PRESETS["point-mass-k2"][1], n=(7, 7))) is None
+    # Baselines get their domain's one-level task at their own scale (CPU or GPU).
+    baselines = all_presets()
+    for algo in ("gcrl", "metra", "dads"):
+        assert phase2_preset_for(baselines[f"{algo}-ant-field-cpu"][1]) == "ant-field-cpu-k1"
+        assert phase2_preset_for(baselines[f"{algo}-ant-field-small"][1]) == "ant-field-small-k1"
+        assert phase2_preset_for(baselines[f"{algo}-half-cheetah-small"][1]) == "half-cheetah-small-k1"
     cheetah = PHASE2_PRESETS["half-cheetah-big-k2"][2]
     assert cheetah.region == (450.0,) and cheetah.region_offset[0] > 0  # lies ahead of the start

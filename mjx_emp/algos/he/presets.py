@@ -179,6 +179,10 @@ GCRL_PRESETS: dict[str, tuple[str, GcrlConfig]] = {
     "gcrl-ant-field-cpu": ("GCRL: ant-field-cpu-k1's learner, fixed 4 x 4 m goal box", _gcrl(ANT_FIELD_CPU_K1, 2.0)),
     "gcrl-half-cheetah-cpu": ("GCRL: half-cheetah-cpu-k1's learner, fixed 8 m goal box",
                               _gcrl(HALF_CHEETAH_CPU_K1, 4.0)),
+    "gcrl-ant-field-small": ("GCRL: ant-field-small-k1's learner, fixed 40 x 40 m goal box (GPU scale)",
+                             _gcrl(PRESETS["ant-field-small-k1"][1], 20.0)),
+    "gcrl-half-cheetah-small": ("GCRL: half-cheetah-small-k1's learner, fixed 95 m goal box (GPU scale)",
+                                _gcrl(PRESETS["half-cheetah-small-k1"][1], 47.5)),
 }
 """Name -> (description, config) of the fixed-goal-space baseline."""
 
@@ -242,20 +246,24 @@ PHASE2_PRESETS: dict[str, tuple[str, str, Phase2Config]] = {
 def phase2_preset_for(skills) -> str | None:
     """The phase-2 preset for a run trained with ``skills``: the one built on the phase-1
     preset it was trained with (seed and epochs aside), else the first one built on a
-    preset with its domain and n, else None. A flat skill learner's run gets its domain's
-    one-level CPU task (the skills there are as long as HE's k=1 skills)."""
+    preset with its domain, n and number of environments (GPU or CPU scale), else the first
+    with its domain and n, else None. A flat skill learner's run gets its domain's one-level
+    task at its scale (the skills there are as long as HE's k=1 skills)."""
     def same_preset(base: TrainConfig) -> bool:
         return dataclasses.replace(base, seed=skills.seed, epochs=skills.epochs) == skills
 
     candidates = [(name, PRESETS[phase1][1]) for name, (_, phase1, _) in PHASE2_PRESETS.items()]
-    if not isinstance(skills, TrainConfig):  # a flat skill learner: the one-level CPU task of its domain
-        cpu = {"point_mass": "point-mass-k1", "ant_field": "ant-field-cpu-k1",
-               "half_cheetah_field": "half-cheetah-cpu-k1"}
-        return cpu.get(skills.env)
+    if not isinstance(skills, TrainConfig):  # a flat skill learner: the one-level task of its domain and scale
+        gpu = skills.num_envs >= PRESETS["ant-field-small-k1"][1].num_envs
+        one_level = {"point_mass": ("point-mass-k1",) * 2, "ant_field": ("ant-field-cpu-k1", "ant-field-small-k1"),
+                     "half_cheetah_field": ("half-cheetah-cpu-k1", "half-cheetah-small-k1")}
+        return one_level[skills.env][gpu] if skills.env in one_level else None
     for name, base in candidates:
         if same_preset(base):
             return name
-    for name, base in candidates:
-        if (base.env, tuple(base.n)) == (skills.env, tuple(skills.n)):
-            return name
+    for same_scale in (True, False):
+        for name, base in candidates:
+            if (base.env, tuple(base.n)) == (skills.env, tuple(skills.n)) and (
+                    not same_scale or base.num_envs == skills.num_envs):
+                return name
     return None

@@ -27,6 +27,15 @@ _ROBOTS = dict(skill_dim=2, n=20, epochs=300, num_envs=16, collect_steps=20, ite
                batch_size=256, replay_capacity=300_000, min_replay=5_000, hidden=(256, 256))
 
 
+# The GPU rows beside Table 1's Ant Field Small and Half Cheetah Small (HE: skills of n = 20
+# actions, 4096 environments): skills of 20 actions, 4096 environments, METRA's 1024-wide
+# networks and L = 100 prior skills for DADS (METRA's code), 50 gradient steps on
+# minibatches of 1024 per iteration, 500 epochs of 819,200 environment steps (0.41 B).
+# Not run yet: no GPU has been lent to the sessions that built them.
+_GPU = dict(skill_dim=2, n=20, epochs=500, num_envs=4096, collect_steps=20, iterations=10, grad_steps=50,
+            batch_size=1024, replay_capacity=1_000_000, min_replay=20_000, hidden=(1024, 1024))
+
+
 def _cpu_extras(config_type: type[SkillConfig]) -> dict:
     return {"prior_samples": 16} if config_type is DadsConfig else {}
 
@@ -50,4 +59,8 @@ for _name, _type in (("diayn", DiaynConfig), ("hidio", HidioConfig), ("dads", Da
                                          _robot(_type, "ant_field"))
     PRESETS[f"{_name}-half-cheetah-cpu"] = (f"{_name.upper()} on the paper's Half Cheetah, skills of 20 actions (CPU)",
                                             _robot(_type, "half_cheetah_field"))
+    PRESETS[f"{_name}-ant-field-small"] = (f"{_name.upper()} beside Table 1's Ant Field Small (GPU scale)",
+                                           _type(env="ant_field", **_GPU))
+    PRESETS[f"{_name}-half-cheetah-small"] = (f"{_name.upper()} beside Table 1's Half Cheetah Small (GPU scale)",
+                                              _type(env="half_cheetah_field", **_GPU))
 """Name -> (description, config)."""
