@@ -50,17 +50,31 @@ class Args:
     """Where the charts go (baselines_<env>.png); empty draws none."""
     report_only: bool = False
     """Train and evaluate nothing: print the table and draw the charts of the rows in ``--out``."""
+    goal_half_width: float | None = None
+    """GCRL presets only: a hand-set box of this half-width (m) instead of the preset's; runs
+    go to BASE/<preset>-w<width>-s<seed> and rows are named <preset>-w<width>."""
 
 
-def train_or_resume(base: Path, preset: str, seed: int, epochs: int | None) -> Path:
-    """The run directory of (preset, seed), trained to its epoch count."""
+def variant_name(preset: str, goal_half_width: float | None) -> str:
+    """The row and run-directory name of PRESET, with its GCRL box half-width when overridden."""
+    return preset if goal_half_width is None else f"{preset}-w{goal_half_width:g}"
+
+
+def train_or_resume(base: Path, preset: str, seed: int, epochs: int | None,
+                    goal_half_width: float | None = None) -> Path:
+    """The run directory of (preset, seed), trained to its epoch count (with GCRL's box
+    half-width replaced when ``goal_half_width`` is given)."""
     presets = all_presets()
     if preset not in presets:
         raise SystemExit(f"presets: {preset!r} is unknown; allowed values: {sorted(presets)}")
     config = dataclasses.replace(presets[preset][1], seed=seed)
     if epochs is not None:
         config = dataclasses.replace(config, epochs=epochs)
-    run_dir = base / f"{preset}-s{seed}"
+    if goal_half_width is not None:
+        if not hasattr(config, "goal_half_width"):
+            raise SystemExit(f"goal_half_width: only GCRL presets have a hand-set box; {preset!r} is not one")
+        config = dataclasses.replace(config, goal_half_width=(goal_half_width,) * len(config.goal_half_width))
+    run_dir = base / f"{variant_name(preset, goal_half_width)}-s{seed}"
     if (run_dir / run.CONFIG_FILE).exists():
         run.resume(ResumeExperiment(resume=str(run_dir), epochs=config.epochs))
     else:
@@ -123,10 +137,10 @@ def main(args: Args) -> None:
     rows = json.loads(out.read_text())["rows"] if out.exists() else []
     for preset in [] if args.report_only else args.presets:
         for seed in args.seeds:
-            run_dir = train_or_resume(Path(args.base), preset, seed, args.epochs)
+            run_dir = train_or_resume(Path(args.base), preset, seed, args.epochs, args.goal_half_width)
             if args.phase2:
                 train_phase2(run_dir)
-            row = evaluate_run(run_dir, preset, seed)
+            row = evaluate_run(run_dir, variant_name(preset, args.goal_half_width), seed)
             print(json.dumps(row), flush=True)
             rows = merge_row(out, row)
     print("| preset | seeds | env steps | wall s (mean) | coverage cells, mean ± std | posterior std | "
