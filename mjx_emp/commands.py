@@ -31,6 +31,10 @@ class TrainExperiment(Generic[ConfigT]):
     """Run directory; empty picks runs/<env>-k<k>-<date>-<time>. Must not hold a run already."""
     keep_checkpoints: int = 3
     """How many of the newest epoch checkpoints to keep."""
+    seeds: tuple[int, ...] = ()
+    """Train these seeds of the config together, as one vmapped program (the config's own seed
+    is then unused); each seed gets its own run directory RUN_DIR-s<seed>, resumable and
+    evaluable on its own. Empty: one run of the config's seed."""
 
 
 @dataclasses.dataclass(frozen=True)

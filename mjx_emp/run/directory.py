@@ -19,6 +19,7 @@ import sys
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 from mjx_emp.algos.he.config import Phase2Config, check_phase2_config
 from mjx_emp.algos.registry import algorithm_of, config_from_json, config_to_json, make_agent
@@ -117,39 +118,75 @@ def progress_reporter(total_epochs: int, first_epoch: int,
         yield lambda metrics: bar.update(task, completed=metrics["epoch"], info=describe(metrics))
 
 
-def train_epochs(trainer, state, checkpoints, run_dir: Path, report: Callable[[dict], None]):
-    """Train until ``trainer.cfg.epochs``, checkpointing and logging each finished epoch.
+@dataclasses.dataclass(frozen=True)
+class Member:
+    """One run directory that a training program writes: the agent whose config it records
+    (its metrics and divergence check), its checkpoints and its directory."""
 
-    ``trainer`` is any algorithm's agent or a Phase2Trainer (each offers ``train_epoch``,
-    ``divergence`` and ``metrics``). Raises TrainingDiverged, without saving, when an epoch's
-    losses or parameters are not finite; the newest checkpoint is then the last good epoch.
+    trainer: Any
+    checkpoints: Any
+    run_dir: Path
+
+
+def _alone(state, stats) -> list[tuple[Any, Any]]:
+    return [(state, stats)]
+
+
+def train_members(program, state, members: list[Member], report: Callable[[dict], None],
+                  split: Callable[[Any, Any], list[tuple[Any, Any]]] = _alone):
+    """Train until the members' epoch count, checkpointing and logging each finished epoch.
+
+    ``program.train_epoch(state) -> (state, stats)`` trains every member at once (one agent,
+    or several seeds under one vmap); ``split(state, stats)`` gives each member's share.
+    Raises TrainingDiverged, saving nothing of that epoch for any member, when a member's
+    losses or parameters are not finite; each member's newest checkpoint is then its last
+    good epoch. ``report`` sees the first member's metrics. ``seconds`` in a member's
+    metrics is the wall time of the whole program's epoch.
     """
     import jax
 
-    cfg = trainer.cfg
-    with open(run_dir / METRICS_FILE, "a") as log:
-        while int(state.epoch) < cfg.epochs:
+    epochs = members[0].trainer.cfg.epochs
+    with contextlib.ExitStack() as stack:
+        logs = [stack.enter_context(open(member.run_dir / METRICS_FILE, "a")) for member in members]
+        while int(split(state, None)[0][0].epoch) < epochs:
             start = time.perf_counter()
-            state, stats = trainer.train_epoch(state)
+            state, stats = program.train_epoch(state)
             jax.block_until_ready(state)
             seconds = time.perf_counter() - start
-            epoch = int(state.epoch)
-            problem = trainer.divergence(state, stats)
-            if problem:
-                checkpoints.wait()
-                kept = checkpoints.epochs()
+            parts = split(state, stats)
+            epoch = int(parts[0][0].epoch)
+            problems = [(m, m.trainer.divergence(*part)) for m, part in zip(members, parts)]
+            problems = [(m, problem) for m, problem in problems if problem]
+            if problems:
+                for member in members:
+                    member.checkpoints.wait()
+                member, problem = problems[0]
+                kept = member.checkpoints.epochs()
                 raise TrainingDiverged(
                     f"epoch {epoch}: {problem}. Stopped without saving this epoch; the last good "
-                    f"checkpoint is epoch {kept[-1] if kept else None} in {checkpoints.directory}"
+                    f"checkpoint is epoch {kept[-1] if kept else None} in {member.checkpoints.directory}"
+                    + (f" (and likewise for {len(members) - 1} other seed run(s))" if len(members) > 1 else "")
                 )
-            save_seconds = checkpoints.save(epoch, state, cfg)
-            metrics = trainer.metrics(state, stats, seconds)
-            metrics["checkpoint_blocked_s"] = save_seconds  # the write itself continues in the background
-            log.write(json.dumps(metrics) + "\n")
-            log.flush()
-            report(metrics)
-    checkpoints.wait()
+            for member, log, (member_state, member_stats) in zip(members, logs, parts):
+                save_seconds = member.checkpoints.save(epoch, member_state, member.trainer.cfg)
+                metrics = member.trainer.metrics(member_state, member_stats, seconds)
+                metrics["checkpoint_blocked_s"] = save_seconds  # the write itself continues in the background
+                log.write(json.dumps(metrics) + "\n")
+                log.flush()
+                if member is members[0]:
+                    report(metrics)
+    for member in members:
+        member.checkpoints.wait()
     return state
+
+
+def train_epochs(trainer, state, checkpoints, run_dir: Path, report: Callable[[dict], None]):
+    """Train one run until ``trainer.cfg.epochs`` (see :func:`train_members`).
+
+    ``trainer`` is any algorithm's agent or a phase-2 trainer (each offers ``train_epoch``,
+    ``divergence`` and ``metrics``).
+    """
+    return train_members(trainer, state, [Member(trainer, checkpoints, run_dir)], report)
 
 
 def _holds_a_run(run_dir: Path) -> bool:
@@ -169,7 +206,7 @@ def _train_to_the_end(trainer, state, checkpoints, run_dir: Path):
         return train_epochs(trainer, state, checkpoints, run_dir, report)
 
 
-def _fresh_run_dir(path: str, field: str, what: str, command: str) -> Path:
+def fresh_run_dir(path: str, field: str, what: str, command: str) -> Path:
     """Create the directory of a new run; one that already holds ``what`` is refused, naming ``field``."""
     run_dir = prepare_run_dir(path, field)
     if _holds_a_run(run_dir):
@@ -186,22 +223,32 @@ def config_json(cfg) -> dict:
     return dataclasses.asdict(cfg) if isinstance(cfg, Phase2Config) else config_to_json(cfg)
 
 
+def write_config(run_dir: Path, cfg) -> None:
+    """RUN_DIR/config.json of ``cfg`` (see :func:`config_json`), written atomically."""
+    write_atomically(Path(run_dir) / CONFIG_FILE, json.dumps(config_json(cfg), indent=1))
+
+
 def _train_new(trainer, state, run_dir: Path, keep_checkpoints: int, config_type: type):
     """Write the config, checkpoint ``state`` as epoch 0, and train to the end."""
     from mjx_emp.run.checkpoint import Checkpoints
 
-    write_atomically(run_dir / CONFIG_FILE, json.dumps(config_json(trainer.cfg), indent=1))
+    write_config(run_dir, trainer.cfg)
     checkpoints = Checkpoints(run_dir, keep_checkpoints, config_type)
     checkpoints.save(0, state, trainer.cfg)
     return _train_to_the_end(trainer, state, checkpoints, run_dir)
 
 
 def train(exp: TrainExperiment):
-    """Train a new run of the config's algorithm; returns the final state."""
+    """Train a new run of the config's algorithm (with ``exp.seeds``, one run per seed under one
+    vmap: :mod:`mjx_emp.run.seeds`); returns the final state."""
+    if exp.seeds:
+        from mjx_emp.run.seeds import train_seeds
+
+        return train_seeds(exp)
     algorithm = algorithm_of(exp.config)
     algorithm.check(exp.config)
     _check_keep(exp.keep_checkpoints)
-    run_dir = _fresh_run_dir(exp.run_dir or default_run_dir(exp.config), "run_dir", "a run", "mjx-emp train")
+    run_dir = fresh_run_dir(exp.run_dir or default_run_dir(exp.config), "run_dir", "a run", "mjx-emp train")
     print(f"run directory: {run_dir}", flush=True)
     trainer = make_agent(exp.config)
     return _train_new(trainer, trainer.init(), run_dir, exp.keep_checkpoints, algorithm.config_type)
@@ -247,7 +294,7 @@ def _resume(exp: ResumeExperiment, load: Callable):
 
     print(f"resuming {run_dir} from epoch {epoch}", flush=True)
     keep_metrics_through(run_dir / METRICS_FILE, epoch)
-    write_atomically(run_dir / CONFIG_FILE, json.dumps(config_json(trainer.cfg), indent=1))
+    write_config(run_dir, trainer.cfg)
     checkpoints = Checkpoints(run_dir, exp.keep_checkpoints, type(trainer.cfg))
     return _train_to_the_end(trainer, state, checkpoints, run_dir)
 
@@ -281,7 +328,7 @@ def train_phase2(exp: Phase2Experiment):
     skills, epoch, skills_state = load_run(Path(exp.run_dir), field="run_dir", epoch=requested)
     cfg = dataclasses.replace(exp.config, phase1_epoch=epoch)
     trainer = make_phase2_trainer(skills, cfg)
-    out = _fresh_run_dir(exp.out or str(Path(exp.run_dir) / PHASE2_SUBDIR), "out", "a phase-2 run", "mjx-emp phase2")
+    out = fresh_run_dir(exp.out or str(Path(exp.run_dir) / PHASE2_SUBDIR), "out", "a phase-2 run", "mjx-emp phase2")
     print(f"phase 2 on the skills of {exp.run_dir} (epoch {epoch}), writing to {out}", flush=True)
     write_atomically(out / SKILLS_FILE, json.dumps(config_json(skills.cfg), indent=1))
     return _train_new(trainer, trainer.init(skills_state), out, exp.keep_checkpoints, Phase2Config)

@@ -1,0 +1,103 @@
+"""Several seeds of one config trained as one program: `mjx-emp train PRESET --seeds 0 1 2 3`.
+
+Every agent is pure functions over a pytree, so the train states of S seeds stack on a
+leading seed axis and one ``jax.vmap`` of the agent's epoch trains them all in a single
+compiled program (one compile; the batched work of S seeds per kernel instead of S
+programs one after another). Each seed still gets its own run directory, config (with its
+own ``seed``), metrics and checkpoints, so it resumes, evaluates and plots on its own.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+
+from mjx_emp.algos.registry import algorithm_of, make_agent
+from mjx_emp.commands import TrainExperiment
+from mjx_emp.errors import ConfigError
+from mjx_emp.run import directory as run
+
+
+@dataclasses.dataclass(frozen=True)
+class SeedGroup:
+    """The agent of one config (any seed's: the seed only picks the initial key) and the
+    seeds trained together. A static jit argument: hashes by the agent and the seeds."""
+
+    agent: Any
+    seeds: tuple[int, ...]
+
+    def init(self) -> Any:
+        """Each seed's fresh state, stacked: seed i's slice is ``agent.init(key(seeds[i]))``,
+        i.e. the state a run of that seed alone starts from."""
+        keys = jnp.stack([jax.random.key(seed) for seed in self.seeds])
+        return _jit_group_init(self, keys)
+
+    def train_epoch(self, state: Any) -> tuple[Any, Any]:
+        """One epoch of every seed, as one jitted vmap of the agent's epoch."""
+        return _jit_group_epoch(self, state)
+
+    def split(self, state: Any, stats: Any) -> list[tuple[Any, Any]]:
+        """Each seed's (state, stats) slice, in ``seeds`` order (stats may be None)."""
+        return [(seed_slice(state, i), None if stats is None else seed_slice(stats, i))
+                for i in range(len(self.seeds))]
+
+
+def seed_slice(tree: Any, index: int) -> Any:
+    """Seed ``index``'s part of a pytree stacked on a leading seed axis."""
+    return jax.tree.map(lambda x: x[index], tree)
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def _jit_group_init(group: SeedGroup, keys: jax.Array) -> Any:
+    return jax.vmap(group.agent.init)(keys)
+
+
+@functools.partial(jax.jit, static_argnums=0, donate_argnums=1)
+def _jit_group_epoch(group: SeedGroup, state: Any) -> tuple[Any, Any]:
+    return jax.vmap(group.agent.train_epoch)(state)
+
+
+def seed_run_dirs(base: str, seeds: tuple[int, ...]) -> list[str]:
+    """The run directory of each seed: BASE-s<seed>."""
+    return [f"{base}-s{seed}" for seed in seeds]
+
+
+def check_seeds(seeds: tuple[int, ...]) -> None:
+    """Seeds must be distinct non-negative integers (each names a run directory)."""
+    if len(set(seeds)) != len(seeds) or any(seed < 0 for seed in seeds):
+        raise ConfigError(f"seeds: must be distinct integers >= 0; got {list(seeds)}")
+
+
+def train_seeds(exp: TrainExperiment) -> Any:
+    """Train ``exp.seeds`` of ``exp.config`` as one vmapped program, one run directory per
+    seed (RUN_DIR-s<seed>); returns the stacked final state."""
+    from mjx_emp.run.checkpoint import Checkpoints
+
+    algorithm = algorithm_of(exp.config)
+    algorithm.check(exp.config)
+    check_seeds(exp.seeds)
+    if exp.keep_checkpoints < 1:
+        raise ConfigError(f"keep_checkpoints: must be >= 1; got {exp.keep_checkpoints}")
+    base = exp.run_dir or run.default_run_dir(exp.config)
+    dirs = [run.fresh_run_dir(path, "run_dir", "a run", "mjx-emp train") for path in seed_run_dirs(base, exp.seeds)]
+    print(f"run directories: {', '.join(str(d) for d in dirs)}", flush=True)
+    agents = [make_agent(dataclasses.replace(exp.config, seed=seed)) for seed in exp.seeds]
+    group = SeedGroup(agents[0], tuple(exp.seeds))
+    state = group.init()
+    members = []
+    for agent, run_dir, (seed_state, _) in zip(agents, dirs, group.split(state, None)):
+        run.write_config(run_dir, agent.cfg)
+        checkpoints = Checkpoints(run_dir, exp.keep_checkpoints, algorithm.config_type)
+        checkpoints.save(0, seed_state, agent.cfg)
+        members.append(run.Member(agent, checkpoints, Path(run_dir)))
+    try:
+        with run.progress_reporter(exp.config.epochs, 0, agents[0].describe) as report:
+            return run.train_members(group, state, members, report, group.split)
+    finally:
+        for member in members:
+            member.checkpoints.close()
