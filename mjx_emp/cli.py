@@ -6,6 +6,7 @@ Bad input exits with code 2 and a message naming the field and what it allows.
 from __future__ import annotations
 
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -297,6 +298,29 @@ def preset_commands() -> Any:
     return Union[tuple(commands)]  # noqa: UP007 (a runtime union of Annotated types)
 
 
+NO_COMPILE_CACHE = "--no-compile-cache"
+
+
+def default_compile_cache() -> Path:
+    """Where compiled programs are kept between runs: $XDG_CACHE_HOME/mjx-emp/xla (~/.cache/...)."""
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "mjx-emp" / "xla"
+
+
+def use_compile_cache(argv: list[str]) -> list[str]:
+    """Turn on JAX's persistent compilation cache for this process (before JAX is imported) and
+    return ``argv`` without the ``--no-compile-cache`` flag that turns it off.
+
+    A re-run, resume or second seed of the same config then loads its compiled epoch instead
+    of compiling it again; what it computes is unchanged. A ``JAX_COMPILATION_CACHE_DIR``
+    set by the user wins; programs that compile in under a second are not stored.
+    """
+    if NO_COMPILE_CACHE in argv:
+        return [arg for arg in argv if arg != NO_COMPILE_CACHE]
+    os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", str(default_compile_cache()))
+    os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "1")
+    return argv
+
+
 def main(argv: list[str] | None = None) -> None:
     """Entry point of the ``mjx-emp`` console script.
 
@@ -305,9 +329,10 @@ def main(argv: list[str] | None = None) -> None:
     random-init agent, ``mjx-emp phase2 RUN_DIR`` trains the downstream policy over a run's
     skills (``--resume DIR`` continues it), ``mjx-emp eval RUN_DIR...`` reports phase-1 and
     phase-2 figures, ``mjx-emp plot RUN_DIR`` draws a run's pictures and ``mjx-emp render
-    RUN_DIR`` writes a GIF of its skills.
+    RUN_DIR`` writes a GIF of its skills. Compiled programs are cached under
+    ``default_compile_cache()``; ``--no-compile-cache`` (any command) compiles afresh.
     """
-    argv = sys.argv[1:] if argv is None else list(argv)
+    argv = use_compile_cache(sys.argv[1:] if argv is None else list(argv))
     if argv[:1] == ["render"]:
         from mjx_emp.viz.render import configure_headless_gl
 

@@ -1,6 +1,7 @@
 """``mjx-emp`` command line: bad input exits 2 naming the field; the main job runs."""
 
 import json
+import os
 import subprocess
 import sys
 
@@ -100,3 +101,15 @@ def test_train_writes_config_and_one_metrics_line_per_epoch(tmp_path):
         assert len(m["levels"]) == 2 and m["env_steps_per_s"] > 0
         assert all(level["volume"] > 0 for level in m["levels"])
     assert "epoch    2" in result.stdout
+
+
+@pytest.mark.parametrize("flags, cached", [((), True), (("--no-compile-cache",), False)])
+def test_compiled_programs_are_cached_under_the_users_cache_dir_unless_turned_off(tmp_path, flags, cached):
+    env = {**os.environ, "XDG_CACHE_HOME": str(tmp_path)}
+    env.pop("JAX_COMPILATION_CACHE_DIR", None)  # the test session's own cache
+    result = subprocess.run([sys.executable, "-m", "mjx_emp.cli", "rollout", "--n", "10", "--eps", "0.3", "--steps",
+                             "20", "--batch-size", "8", "--calls", "1", *flags],
+                            env=env, capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stderr
+    stored = list((tmp_path / "mjx-emp" / "xla").glob("*")) if (tmp_path / "mjx-emp" / "xla").exists() else []
+    assert bool(stored) == cached, stored
