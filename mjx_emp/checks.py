@@ -33,6 +33,20 @@ def check_counts(cfg, names: tuple[str, ...]) -> None:
             raise ConfigError(f"{name}: must be >= 1; got {getattr(cfg, name)}")
 
 
+def check_shards(cfg, split_fields: tuple[str, ...]) -> None:
+    """``shards`` >= 1 and each field that a shard takes its part of divisible by it."""
+    if cfg.shards < 1:
+        raise ConfigError(f"shards: must be >= 1; got {cfg.shards}")
+    for name in split_fields:
+        if getattr(cfg, name) % cfg.shards:
+            raise ConfigError(f"{name}: must be a multiple of shards ({cfg.shards}); got {getattr(cfg, name)}")
+
+
+def shard_config(cfg, split_fields: tuple[str, ...]):
+    """One shard's config: each split field divided by ``shards``, and ``shards`` 1."""
+    return dataclasses.replace(cfg, shards=1, **{name: getattr(cfg, name) // cfg.shards for name in split_fields})
+
+
 def check_learning(cfg, learning_rates: tuple[str, ...], noises: tuple[str, ...]) -> None:
     """The actor-critic settings both phases share: hidden widths, rates, tau, gamma, noise stds."""
     if not cfg.hidden or any(w < 1 for w in cfg.hidden):

@@ -31,6 +31,10 @@ class TrainExperiment(Generic[ConfigT]):
     """Run directory; empty picks runs/<env>-k<k>-<date>-<time>. Must not hold a run already."""
     keep_checkpoints: int = 3
     """How many of the newest epoch checkpoints to keep."""
+    num_devices: int = 0
+    """Local devices to train on. An unsplit config is split into one shard per device (its
+    environments, minibatch and buffers divided among them, gradients averaged; see
+    ``--shards``); 0: every local device (one on a machine with one GPU or a CPU)."""
     seeds: tuple[int, ...] = ()
     """Train these seeds of the config together, as one vmapped program (the config's own seed
     is then unused); each seed gets its own run directory RUN_DIR-s<seed>, resumable and
@@ -49,6 +53,9 @@ class ResumeExperiment:
     """If the newest checkpoint is unusable, resume from the newest one that restores."""
     keep_checkpoints: int = 3
     """How many of the newest epoch checkpoints to keep."""
+    num_devices: int = 0
+    """Local devices a run split into shards trains on (any count that divides its shards;
+    0: as many as divide them)."""
 
 
 @dataclasses.dataclass(frozen=True)

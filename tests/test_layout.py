@@ -8,7 +8,7 @@ PACKAGE = ROOT / "mjx_emp"
 
 # Bottom first. A module may import modules of its own layer or of layers below it.
 LAYERS = [
-    ["mjx_emp.errors", "mjx_emp.tracing", "mjx_emp.counters", "mjx_emp.tables"],
+    ["mjx_emp.errors", "mjx_emp.tracing", "mjx_emp.counters", "mjx_emp.tables", "mjx_emp.shards"],
     ["mjx_emp.checks", "mjx_emp.envs.registry"],
     ["mjx_emp.envs.mjx_quiet", "mjx_emp.envs.env", "mjx_emp.envs.scripted", "mjx_emp.gce", "mjx_emp.replay",
      "mjx_emp.metrics"],
@@ -21,7 +21,8 @@ LAYERS = [
     ["mjx_emp.algos.registry"],
     ["mjx_emp.downstream", "mjx_emp.downstream_flat"],
     ["mjx_emp.commands"],
-    ["mjx_emp.run.checkpoint", "mjx_emp.run.directory", "mjx_emp.run.evaluate", "mjx_emp.run.seeds"],
+    ["mjx_emp.run.checkpoint", "mjx_emp.run.directory", "mjx_emp.run.evaluate", "mjx_emp.run.seeds",
+     "mjx_emp.run.devices"],
     ["mjx_emp.viz.plots", "mjx_emp.viz.render"],
     ["mjx_emp.cli"],
 ]

@@ -12,12 +12,14 @@ import dataclasses
 from collections.abc import Callable, Mapping
 from typing import Any, Protocol
 
+from mjx_emp.algos.he.config import SHARD_SPLIT as HE_SHARD_SPLIT
 from mjx_emp.algos.he.config import GcrlConfig, TrainConfig, check_gcrl_config, check_train_config
 from mjx_emp.algos.he.presets import GCRL_PRESETS
 from mjx_emp.algos.he.presets import PRESETS as HE_PRESETS
+from mjx_emp.algos.skills.config import SHARD_SPLIT as SKILL_SHARD_SPLIT
 from mjx_emp.algos.skills.config import DadsConfig, DiaynConfig, HidioConfig, MetraConfig, check_skill_config
 from mjx_emp.algos.skills.presets import PRESETS as SKILL_PRESETS
-from mjx_emp.checks import config_from_dict
+from mjx_emp.checks import config_from_dict, shard_config
 from mjx_emp.errors import ConfigError
 
 ALGORITHM_KEY = "algorithm"
@@ -57,29 +59,32 @@ class Algorithm:
     config_type: type
     check: Callable[[Any], None]
     presets: Mapping[str, tuple[str, Any]]
-    make_agent: Callable[[Any], Agent]
+    make_agent: Callable[[Any, tuple[str, ...]], Agent]
+    """(one shard's config, the axes its shards run along) -> agent."""
+    shard_split: tuple[str, ...]
+    """The config fields a shard of a split run takes its part of."""
 
 
-def _he_agent(cfg: TrainConfig) -> Agent:
+def _he_agent(cfg: TrainConfig, shard_axes: tuple[str, ...]) -> Agent:
     from mjx_emp.algos.he.agent import Trainer  # deferred: JAX loads only when an agent is built
 
-    return Trainer(cfg)
+    return Trainer(cfg, shard_axes)
 
 
-def _skill_agent(cfg: Any) -> Agent:
+def _skill_agent(cfg: Any, shard_axes: tuple[str, ...]) -> Agent:
     from mjx_emp.algos.skills.agent import SkillAgent  # deferred: JAX loads only when an agent is built
 
-    return SkillAgent(cfg)
+    return SkillAgent(cfg, shard_axes)
 
 
 def _skill_algorithm(name: str, config_type: type) -> Algorithm:
     presets = {preset: entry for preset, entry in SKILL_PRESETS.items() if preset.startswith(f"{name}-")}
-    return Algorithm(name, config_type, check_skill_config, presets, _skill_agent)
+    return Algorithm(name, config_type, check_skill_config, presets, _skill_agent, SKILL_SHARD_SPLIT)
 
 
 ALGORITHMS: dict[str, Algorithm] = {
-    "he": Algorithm("he", TrainConfig, check_train_config, HE_PRESETS, _he_agent),
-    "gcrl": Algorithm("gcrl", GcrlConfig, check_gcrl_config, GCRL_PRESETS, _he_agent),
+    "he": Algorithm("he", TrainConfig, check_train_config, HE_PRESETS, _he_agent, HE_SHARD_SPLIT),
+    "gcrl": Algorithm("gcrl", GcrlConfig, check_gcrl_config, GCRL_PRESETS, _he_agent, HE_SHARD_SPLIT),
     "diayn": _skill_algorithm("diayn", DiaynConfig),
     "hidio": _skill_algorithm("hidio", HidioConfig),
     "dads": _skill_algorithm("dads", DadsConfig),
@@ -109,11 +114,18 @@ def config_from_json(values: dict[str, Any]) -> Any:
     return config_from_dict(values, ALGORITHMS[name].config_type)
 
 
-def make_agent(cfg: Any) -> Agent:
-    """Check ``cfg`` and build its algorithm's agent."""
+def make_agent(cfg: Any, shard_axes: tuple[str, ...] = ()) -> Agent:
+    """Check ``cfg`` and build its algorithm's agent: for a run split into shards, the agent
+    of one shard (:func:`shard_config`), whose collectives run along ``shard_axes`` when the
+    shards train together (empty: on its own, e.g. to evaluate a shard's state)."""
     algorithm = algorithm_of(cfg)
     algorithm.check(cfg)
-    return algorithm.make_agent(cfg)
+    return algorithm.make_agent(shard_config(cfg, algorithm.shard_split), tuple(shard_axes))
+
+
+def one_shard_config(cfg: Any) -> Any:
+    """The config of one shard of a run of ``cfg`` (``cfg`` itself when it is not split)."""
+    return shard_config(cfg, algorithm_of(cfg).shard_split)
 
 
 def all_presets() -> dict[str, tuple[str, Any]]:

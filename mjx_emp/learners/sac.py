@@ -20,6 +20,7 @@ import optax
 from flax import struct
 
 from mjx_emp.nets import MLP
+from mjx_emp.shards import mean_gradients
 
 Params = Any
 LOG_STD_MIN, LOG_STD_MAX = -5.0, 2.0
@@ -89,6 +90,8 @@ class SAC:
     init_alpha: float = 0.01
     tau: float = 5e-3
     target_entropy: float = -1.0
+    shard_axes: tuple[str, ...] = ()
+    """Axes over which a split run's shards average their gradients (see :mod:`mjx_emp.shards`)."""
 
     @property
     def actor_net(self) -> GaussianActor:
@@ -100,7 +103,8 @@ class SAC:
 
     @property
     def optimizers(self) -> tuple[optax.GradientTransformation, ...]:
-        return optax.adam(self.actor_lr), optax.adam(self.critic_lr), optax.adam(self.alpha_lr)
+        return tuple(mean_gradients(optax.adam(rate), self.shard_axes)
+                     for rate in (self.actor_lr, self.critic_lr, self.alpha_lr))
 
     def init(self, key: jax.Array, x: jax.Array) -> SACLearner:
         """Fresh networks for inputs shaped like ``x`` (one row), alpha at ``init_alpha``."""

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import json
 import os
 import sys
@@ -132,6 +133,13 @@ def _alone(state, stats) -> list[tuple[Any, Any]]:
     return [(state, stats)]
 
 
+def _epoch_of(state) -> int:
+    """A train state's epoch (a split run's state holds it once per shard)."""
+    import numpy as np
+
+    return int(np.asarray(state.epoch).reshape(-1)[0])
+
+
 def train_members(program, state, members: list[Member], report: Callable[[dict], None],
                   split: Callable[[Any, Any], list[tuple[Any, Any]]] = _alone):
     """Train until the members' epoch count, checkpointing and logging each finished epoch.
@@ -148,13 +156,13 @@ def train_members(program, state, members: list[Member], report: Callable[[dict]
     epochs = members[0].trainer.cfg.epochs
     with contextlib.ExitStack() as stack:
         logs = [stack.enter_context(open(member.run_dir / METRICS_FILE, "a")) for member in members]
-        while int(split(state, None)[0][0].epoch) < epochs:
+        while _epoch_of(split(state, None)[0][0]) < epochs:
             start = time.perf_counter()
             state, stats = program.train_epoch(state)
             jax.block_until_ready(state)
             seconds = time.perf_counter() - start
             parts = split(state, stats)
-            epoch = int(parts[0][0].epoch)
+            epoch = _epoch_of(parts[0][0])
             problems = [(m, m.trainer.divergence(*part)) for m, part in zip(members, parts)]
             problems = [(m, problem) for m, problem in problems if problem]
             if problems:
@@ -202,7 +210,7 @@ def _check_keep(keep_checkpoints: int) -> None:
 
 def _train_to_the_end(trainer, state, checkpoints, run_dir: Path):
     """Report progress while training to ``cfg.epochs``; then close ``checkpoints`` (waits for writes)."""
-    with checkpoints, progress_reporter(trainer.cfg.epochs, int(state.epoch), trainer.describe) as report:
+    with checkpoints, progress_reporter(trainer.cfg.epochs, _epoch_of(state), trainer.describe) as report:
         return train_epochs(trainer, state, checkpoints, run_dir, report)
 
 
@@ -238,9 +246,34 @@ def _train_new(trainer, state, run_dir: Path, keep_checkpoints: int, config_type
     return _train_to_the_end(trainer, state, checkpoints, run_dir)
 
 
+def training_program(cfg, num_devices: int = 0):
+    """What trains a run of ``cfg``: its agent, or for a run split into shards a
+    :class:`~mjx_emp.run.devices.ShardedAgent` over ``num_devices`` local devices (0: as
+    many as divide the shards)."""
+    if cfg.shards == 1 and num_devices <= 1:
+        return make_agent(cfg)
+    from mjx_emp.run.devices import ShardedAgent, choose_devices
+
+    return ShardedAgent(cfg, choose_devices(cfg.shards, num_devices))
+
+
+def split_for_devices(cfg, num_devices: int):
+    """A new run's config with its shards set from ``--num-devices``: an unsplit config
+    becomes one shard per device (``num_devices`` 0: every local device); a config that
+    sets its shards keeps them."""
+    if cfg.shards > 1:
+        return cfg
+    if num_devices == 0:
+        import jax
+
+        num_devices = jax.local_device_count()
+    return dataclasses.replace(cfg, shards=num_devices) if num_devices > 1 else cfg
+
+
 def train(exp: TrainExperiment):
     """Train a new run of the config's algorithm (with ``exp.seeds``, one run per seed under one
-    vmap: :mod:`mjx_emp.run.seeds`); returns the final state."""
+    vmap: :mod:`mjx_emp.run.seeds`; split over devices per ``exp.num_devices``: :mod:`mjx_emp.run.devices`);
+    returns the final state."""
     if exp.seeds:
         from mjx_emp.run.seeds import train_seeds
 
@@ -248,9 +281,13 @@ def train(exp: TrainExperiment):
     algorithm = algorithm_of(exp.config)
     algorithm.check(exp.config)
     _check_keep(exp.keep_checkpoints)
-    run_dir = fresh_run_dir(exp.run_dir or default_run_dir(exp.config), "run_dir", "a run", "mjx-emp train")
+    cfg = split_for_devices(exp.config, exp.num_devices)
+    algorithm.check(cfg)
+    run_dir = fresh_run_dir(exp.run_dir or default_run_dir(cfg), "run_dir", "a run", "mjx-emp train")
     print(f"run directory: {run_dir}", flush=True)
-    trainer = make_agent(exp.config)
+    trainer = training_program(cfg, exp.num_devices)
+    if cfg.shards > 1:
+        print(f"split into {cfg.shards} shards on {trainer.num_devices} device(s)", flush=True)
     return _train_new(trainer, trainer.init(), run_dir, exp.keep_checkpoints, algorithm.config_type)
 
 
@@ -280,9 +317,27 @@ def load_run(run_dir: Path, fallback: bool = False, epochs: int | None = None, f
     """
     import jax
 
-    trainer = make_agent(_with_epochs(read_run_config(Path(run_dir), field), epochs))
+    cfg = _with_epochs(read_run_config(Path(run_dir), field), epochs)
+    if cfg.shards > 1:  # a split run: shard 0's state (its networks are every shard's) and agent
+        from mjx_emp.run.devices import ShardedAgent, shard_slice
+
+        program = ShardedAgent(cfg, 1)
+        epoch, state = _restore(Path(run_dir), program, jax.eval_shape(program.init), fallback, epoch)
+        return program.alone, epoch, shard_slice(state, 0)
+    trainer = make_agent(cfg)
     epoch, state = _restore(Path(run_dir), trainer, jax.eval_shape(trainer.init), fallback, epoch)
     return trainer, epoch, state
+
+
+def load_program(run_dir: Path, fallback: bool = False, epochs: int | None = None, field: str = "resume",
+                 num_devices: int = 0):
+    """What trains a run on (see :func:`training_program`) and its newest good checkpoint,
+    placed on the program's devices: ``(program, epoch, state)``."""
+    import jax
+
+    program = training_program(_with_epochs(read_run_config(Path(run_dir), field), epochs), num_devices)
+    epoch, state = _restore(Path(run_dir), program, jax.eval_shape(program.init), fallback)
+    return program, epoch, (program.place(state) if hasattr(program, "place") else state)
 
 
 def _resume(exp: ResumeExperiment, load: Callable):
@@ -300,8 +355,9 @@ def _resume(exp: ResumeExperiment, load: Callable):
 
 
 def resume(exp: ResumeExperiment):
-    """Continue a phase-1 run from its newest good checkpoint; returns the final TrainState."""
-    return _resume(exp, load_run)
+    """Continue a phase-1 run from its newest good checkpoint (a split run on ``exp.num_devices``
+    devices); returns the final TrainState."""
+    return _resume(exp, functools.partial(load_program, num_devices=exp.num_devices))
 
 
 GOAL_SPACE_ALGORITHMS = ("he", "gcrl")

@@ -81,6 +81,9 @@ def train_seeds(exp: TrainExperiment) -> Any:
     algorithm = algorithm_of(exp.config)
     algorithm.check(exp.config)
     check_seeds(exp.seeds)
+    if exp.config.shards > 1 or exp.num_devices > 1:
+        raise ConfigError(f"seeds: a seed group trains on one device, unsplit; got shards={exp.config.shards}, "
+                          f"num_devices={exp.num_devices}")
     if exp.keep_checkpoints < 1:
         raise ConfigError(f"keep_checkpoints: must be >= 1; got {exp.keep_checkpoints}")
     base = exp.run_dir or run.default_run_dir(exp.config)

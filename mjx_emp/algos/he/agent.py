@@ -56,6 +56,7 @@ from mjx_emp.rollout.hierarchy import (
     init_rollout,
     rollout,
 )
+from mjx_emp.shards import ShardAxes, mean_gradients, shard_mean, shard_sum
 from mjx_emp.tracing import count_trace
 
 TRAIN_EPOCH_TRACE = "he.train_epoch"
@@ -134,6 +135,9 @@ class Trainer:
     """
 
     cfg: TrainConfig
+    shard_axes: ShardAxes = ()
+    """The mapped axes this agent's shards run along when a split run trains (see
+    :mod:`mjx_emp.shards`); empty for an agent on its own."""
     env: Env = dataclasses.field(init=False, compare=False, repr=False)
     hierarchy: Hierarchy = dataclasses.field(init=False, compare=False, repr=False)
 
@@ -205,12 +209,8 @@ class Trainer:
     @functools.cached_property
     def optimizers(self) -> dict[str, optax.GradientTransformation]:
         c = self.cfg
-        return {
-            "actor": optax.adam(c.actor_lr),
-            "critic": optax.adam(c.critic_lr),
-            "gs_actor": optax.adam(c.gs_actor_lr),
-            "gs_critic": optax.adam(c.gs_critic_lr),
-        }
+        rates = {"actor": c.actor_lr, "critic": c.critic_lr, "gs_actor": c.gs_actor_lr, "gs_critic": c.gs_critic_lr}
+        return {name: mean_gradients(optax.adam(rate), self.shard_axes) for name, rate in rates.items()}
 
     # ---- state ----------------------------------------------------------------------
     @functools.cached_property
@@ -365,6 +365,7 @@ class Trainer:
             ((replay, goal_space_replay, state.starts), CollectTotals.zero()), fixed_length=is_chain,
         )
         chain = jax.lax.cond(is_chain, lambda: rollout_state, lambda: state.chain)
+        totals = shard_sum(totals, self.shard_axes)  # every shard counts the whole run's steps and episodes
         state = state.replace(
             replay=replay, goal_space_replay=goal_space_replay, starts=starts, chain=chain,
             env_steps=state.env_steps.add(totals.env_steps),
@@ -461,6 +462,7 @@ class Trainer:
             (policies, goal_spaces), losses = jax.lax.switch(
                 branch, branches, (state.policies, state.goal_spaces), state.replay, state.goal_space_replay, update_key
             )
+            losses = shard_mean(losses, self.shard_axes)
             stats = ItemStats(
                 root=root, mode=mode, env_steps=totals.env_steps, transitions=totals.transitions,
                 episodes=totals.episodes, reached=totals.success(), final_distance=totals.mean_distance(),

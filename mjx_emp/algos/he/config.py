@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from mjx_emp.checks import check_counts, check_learning, check_levels
+from mjx_emp.checks import check_counts, check_learning, check_levels, check_shards
 from mjx_emp.envs.registry import DOMAINS
 from mjx_emp.errors import ConfigError
 
@@ -106,6 +106,10 @@ class TrainConfig:
     """Std of the noise on the goal-space action in goal-space iterations (same units)."""
     seed: int = 0
     """Seed of all randomness."""
+    shards: int = 1
+    """Equal parts the environment batch, minibatch, replay and start buffers are split into
+    (data parallelism: each part on its own device where there are enough, gradients
+    averaged over them). Fixed for a run; `--num-devices` places the parts."""
 
     @property
     def k(self) -> int:
@@ -118,6 +122,10 @@ _POSITIVE = ("epochs", "num_envs", "chunk_steps", "gc_iterations", "gc_grad_step
              "gs_replay_capacity", "start_capacity", "start_chain", "start_chunks")
 
 
+SHARD_SPLIT = ("num_envs", "batch_size", "replay_capacity", "gs_replay_capacity", "start_capacity")
+"""The fields a shard of a split run takes its part of (see ``TrainConfig.shards``)."""
+
+
 def check_train_config(cfg: TrainConfig, positive: tuple[str, ...] = _POSITIVE) -> None:
     """Raise ConfigError naming the first invalid field of ``cfg`` and what it allows
     (``positive``: the count fields that must be >= 1)."""
@@ -127,6 +135,7 @@ def check_train_config(cfg: TrainConfig, positive: tuple[str, ...] = _POSITIVE) 
         allowed = sorted(name for name, spec in DOMAINS.items() if spec.torso_quat is not None)
         raise ConfigError(f"heading_frame: {cfg.env!r} has no free torso; allowed only with env in {allowed}")
     check_levels(cfg.n, cfg.eps)
+    check_shards(cfg, SHARD_SPLIT)
     for name in _PER_LEVEL:
         value = getattr(cfg, name)
         if len(value) != cfg.k:

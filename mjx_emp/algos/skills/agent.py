@@ -37,6 +37,7 @@ from mjx_emp.metrics import epoch_header
 from mjx_emp.nets import MLP
 from mjx_emp.replay import ReplayBuffer, flatten_rows, replay_init, replay_insert, replay_sample
 from mjx_emp.rollout.flat import FlatState, flat_init, flat_rollout
+from mjx_emp.shards import ShardAxes, mean_gradients, shard_all, shard_mean, shard_sum
 from mjx_emp.tracing import count_trace
 
 SKILL_EPOCH_TRACE = "skills.train_epoch"
@@ -104,6 +105,9 @@ class SkillAgent:
     """Static side of one flat skill learner's config; hashes by the config (a jit argument)."""
 
     cfg: SkillConfig
+    shard_axes: ShardAxes = ()
+    """The mapped axes this agent's shards run along when a split run trains (see
+    :mod:`mjx_emp.shards`); empty for an agent on its own."""
     env: Env = dataclasses.field(init=False, compare=False, repr=False)
 
     def __post_init__(self):
@@ -122,7 +126,7 @@ class SkillAgent:
         c = self.cfg
         return SAC(hidden=tuple(c.hidden), action_size=self.env.action_size, actor_lr=c.actor_lr,
                    critic_lr=c.critic_lr, alpha_lr=c.alpha_lr, init_alpha=c.init_alpha, tau=c.tau,
-                   target_entropy=-c.target_entropy_scale * self.env.action_size)
+                   target_entropy=-c.target_entropy_scale * self.env.action_size, shard_axes=self.shard_axes)
 
     @property
     def descriptor_size(self) -> int:
@@ -205,7 +209,7 @@ class SkillAgent:
 
     @property
     def model_tx(self) -> optax.GradientTransformation:
-        return optax.adam(self.cfg.model_lr)
+        return mean_gradients(optax.adam(self.cfg.model_lr), self.shard_axes)
 
     # ---- the objectives -------------------------------------------------------------
     def model_step(self, model: SkillModel, batch: SkillTransition, key: jax.Array):
@@ -299,14 +303,17 @@ class SkillAgent:
         def wait(carry):
             return carry, jnp.full(5, jnp.nan), jnp.full(4, jnp.nan), jnp.float32(jnp.nan)
 
-        learned = replay.size >= cfg.min_replay
+        axes = self.shard_axes
+        learned = shard_all(replay.size >= cfg.min_replay, axes)  # every shard learns from the same iteration on
         (sac, model), sac_info, model_info, reward = jax.lax.cond(learned, learn, wait, (state.sac, state.model))
-        env_steps = jnp.int32(cfg.collect_steps * cfg.num_envs)
+        sac_info, model_info, reward = shard_mean((sac_info, model_info, reward), axes)
+        env_steps, episodes, moved_sum, flips = shard_sum(
+            (jnp.int32(cfg.collect_steps * cfg.num_envs), ended.sum(), jnp.where(ended, moved, 0.0).sum(),
+             rollout.env.flip_resets.sum() - flips_before), axes)
         stats = IterationStats(
             env_steps=env_steps, learned=learned, sac=sac_info, model_loss=model_info[0], reward=reward,
             posterior_std=model_info[1], dual_lambda=model_info[2], constraint=model_info[3],
-            episodes=ended.sum(), displacement=jnp.where(ended, moved, 0.0).sum() / jnp.maximum(ended.sum(), 1),
-            flip_resets=rollout.env.flip_resets.sum() - flips_before,
+            episodes=episodes, displacement=moved_sum / jnp.maximum(episodes, 1), flip_resets=flips,
         )
         state = state.replace(sac=sac, model=model, replay=replay, rollout=rollout, key=key,
                               env_steps=state.env_steps.add(env_steps))

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from mjx_emp.checks import check_counts, check_learning
+from mjx_emp.checks import check_counts, check_learning, check_shards
 from mjx_emp.envs.registry import DOMAINS
 from mjx_emp.errors import ConfigError
 
@@ -57,6 +57,9 @@ class SkillConfig:
     gamma: float = 0.99
     tau: float = 5e-3
     seed: int = 0
+    shards: int = 1
+    """Equal parts the environment batch, minibatch and replay are split into (data
+    parallelism; see TrainConfig.shards). Fixed for a run."""
 
     @property
     def k(self) -> int:
@@ -98,11 +101,16 @@ _POSITIVE = ("skill_dim", "n", "epochs", "num_envs", "collect_steps", "iteration
 _RATES = ("actor_lr", "critic_lr", "alpha_lr", "model_lr")
 
 
+SHARD_SPLIT = ("num_envs", "batch_size", "replay_capacity", "min_replay")
+"""The fields a shard of a split run takes its part of (see ``SkillConfig.shards``)."""
+
+
 def check_skill_config(cfg: SkillConfig) -> None:
     """Raise ConfigError naming the first invalid field of ``cfg`` and what it allows."""
     if cfg.env not in DOMAINS:
         raise ConfigError(f"env: {cfg.env!r} is unknown; allowed values: {sorted(DOMAINS)}")
     check_counts(cfg, _POSITIVE)
+    check_shards(cfg, SHARD_SPLIT)
     check_learning(cfg, _RATES, ())
     for name in ("init_alpha", "target_entropy_scale"):
         value = getattr(cfg, name)

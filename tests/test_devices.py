@@ -1,0 +1,97 @@
+"""A run split into shards (data parallelism) on one device and on several (forced CPU devices)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import subprocess
+import sys
+import textwrap
+
+import jax
+import numpy as np
+from tiny import TINY, mjx_emp
+
+from mjx_emp.errors import ConfigError
+from mjx_emp.run.devices import ShardedAgent, shard_slice
+
+# TINY split in two: 4 environments, minibatches of 8 and half of every buffer per shard.
+SPLIT = dataclasses.replace(TINY, shards=2)
+
+
+def test_shards_keep_equal_networks_explore_apart_and_count_the_whole_run():
+    program = ShardedAgent(SPLIT, 1)
+    state, stats = program.train_epoch(program.init())
+    first, second = shard_slice(state, 0), shard_slice(state, 1)
+    for a, b in zip(jax.tree.leaves((first.policies, first.goal_spaces)),
+                    jax.tree.leaves((second.policies, second.goal_spaces))):
+        np.testing.assert_array_equal(a, b)  # averaged gradients: the same step on every shard
+    assert not np.array_equal(jax.random.key_data(first.key), jax.random.key_data(second.key))
+    assert not np.array_equal(first.starts[0].data, second.starts[0].data)  # each shard its own start states
+    # every shard holds the whole run's step count, which is what the unsplit run counts
+    unsplit_state, _ = program.alone.__class__(TINY).train_epoch(program.alone.__class__(TINY).init())
+    assert int(first.env_steps.value()) == int(second.env_steps.value())
+    assert program.alone.cfg.num_envs == TINY.num_envs // 2 and program.alone.cfg.shards == 1
+    assert 0 < int(first.env_steps.value()) <= 2 * int(unsplit_state.env_steps.value())
+    assert program.divergence(state, stats) is None
+
+
+def test_a_split_the_batch_cannot_take_is_refused_naming_the_field():
+    try:
+        ShardedAgent(dataclasses.replace(TINY, shards=3), 1)
+    except ConfigError as err:
+        assert "num_envs: must be a multiple of shards (3); got 8" in str(err)
+    else:
+        raise AssertionError("shards=3 of 8 environments was accepted")
+
+
+FORCED_DEVICES = textwrap.dedent("""
+    import dataclasses, json, sys
+    import jax, numpy as np
+    sys.path.insert(0, "tests")
+    from tiny import TINY
+    from mjx_emp.run.devices import ShardedAgent
+    cfg = dataclasses.replace(TINY, shards=4)
+    results = {}
+    for devices in (1, 4):
+        program = ShardedAgent(cfg, devices)
+        state, _ = program.train_epoch(program.init())
+        leaf = jax.tree.leaves(state.policies)[0]
+        results[devices] = (len(leaf.sharding.device_set), jax.tree.map(np.asarray, (state.policies, state.goal_spaces)))
+    worst = max(float(np.max(np.abs(a - b))) for a, b in zip(jax.tree.leaves(results[1][1]), jax.tree.leaves(results[4][1])))
+    print(json.dumps({"devices": [results[1][0], results[4][0]], "max_difference": worst}))
+""")
+
+
+def forced_cpu_devices(count: int) -> dict[str, str]:
+    return {**os.environ, "XLA_FLAGS": f"--xla_force_host_platform_device_count={count}"}
+
+
+def test_one_epoch_on_one_device_and_on_four_gives_the_same_parameters():
+    result = subprocess.run([sys.executable, "-c", FORCED_DEVICES], env=forced_cpu_devices(4), capture_output=True,
+                            text=True, timeout=900)
+    assert result.returncode == 0, result.stderr
+    report = json.loads(result.stdout.strip().splitlines()[-1])
+    assert report["devices"] == [1, 4]  # the 4-device state really lives on 4 devices
+    assert report["max_difference"] < 1e-4, report
+
+
+def test_cli_trains_on_two_devices_and_resumes_on_one(tmp_path):
+    run_dir = tmp_path / "split"
+    small = ["--num-envs", "8", "--hidden", "16", "--batch-size", "16", "--gc-iterations", "2", "--gc-grad-steps",
+             "3", "--replay-capacity", "2048", "--start-chain", "2"]
+    env = forced_cpu_devices(2)
+    trained = subprocess.run(mjx_emp("train", "point-mass-k1", *small, "--num-devices", "2", "--epochs", "3",
+                                     "--run-dir", str(run_dir)), env=env, capture_output=True, text=True, timeout=900)
+    assert trained.returncode == 0, trained.stderr
+    assert "split into 2 shards on 2 device(s)" in trained.stdout
+    assert json.loads((run_dir / "config.json").read_text())["shards"] == 2
+    resumed = subprocess.run(mjx_emp("train", "--resume", str(run_dir), "--num-devices", "1", "--epochs", "4"),
+                             env=env, capture_output=True, text=True, timeout=900)
+    assert resumed.returncode == 0, resumed.stderr
+    lines = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
+    assert [m["epoch"] for m in lines] == [1, 2, 3, 4]
+    evaluated = subprocess.run(mjx_emp("eval", str(run_dir), "--episodes", "8", "--out", str(tmp_path / "e.json")),
+                               env=env, capture_output=True, text=True, timeout=900)
+    assert evaluated.returncode == 0, evaluated.stderr
