@@ -61,12 +61,18 @@ class ShardedAgent:
     alone: Any = dataclasses.field(init=False, repr=False)
     """One shard's agent on its own (no collectives)."""
     mesh: Mesh = dataclasses.field(init=False, repr=False)
+    _epoch: Any = dataclasses.field(init=False, repr=False)
 
     def __post_init__(self):
         # Built here, never inside a trace: an environment made while tracing would hold tracers.
         object.__setattr__(self, "local", make_agent(self.cfg, (LOCAL_AXIS, DEVICE_AXIS)))
         object.__setattr__(self, "alone", make_agent(self.cfg))
         object.__setattr__(self, "mesh", Mesh(np.asarray(jax.local_devices()[: self.num_devices]), (DEVICE_AXIS,)))
+        # Shardings fixed in and out, so the state an epoch returns is the state the next one
+        # compiled for (left to propagation, the second epoch compiled again).
+        epoch = jax.jit(functools.partial(_shards_epoch, self), in_shardings=(self.sharding,),
+                        out_shardings=self.sharding, donate_argnums=0)
+        object.__setattr__(self, "_epoch", epoch)
 
     @property
     def sharding(self) -> NamedSharding:
@@ -91,7 +97,7 @@ class ShardedAgent:
 
     def train_epoch(self, state: Any) -> tuple[Any, Any]:
         """One epoch of every shard as one jitted program."""
-        return _jit_shards_epoch(self, state)
+        return self._epoch(state)
 
     def metrics(self, state: Any, stats: Any, seconds: float) -> dict[str, Any]:
         """Shard 0's metrics line: its counts are the whole run's (summed in the program) and
@@ -126,8 +132,7 @@ def _jit_fold_shards(program: ShardedAgent, one: Any) -> Any:
     return jax.vmap(lambda index: _fold_keys(one, index))(jnp.arange(program.cfg.shards))
 
 
-@functools.partial(jax.jit, static_argnums=0, donate_argnums=1)
-def _jit_shards_epoch(program: ShardedAgent, state: Any) -> tuple[Any, Any]:
+def _shards_epoch(program: ShardedAgent, state: Any) -> tuple[Any, Any]:
     spec = PartitionSpec(DEVICE_AXIS)
     per_device = jax.vmap(program.local.train_epoch, axis_name=LOCAL_AXIS)
     return jax.shard_map(per_device, mesh=program.mesh, in_specs=spec, out_specs=spec, check_vma=False)(state)
