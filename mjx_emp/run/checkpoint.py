@@ -17,6 +17,7 @@ import dataclasses
 import json
 import logging
 import time
+import zlib
 from pathlib import Path
 from typing import Any
 
@@ -72,6 +73,22 @@ def pack(tree: Any) -> dict[str, np.ndarray]:
         groups.setdefault(host.dtype.name, []).append(host.ravel())
     packed = {name: np.concatenate(parts) for name, parts in groups.items()}  # concatenate copies
     return {name: array for name, array in packed.items() if array.size}
+
+
+def digest(array: np.ndarray) -> int:
+    """CRC-32 of an array's bytes."""
+    return zlib.crc32(np.ascontiguousarray(array).view(np.uint8).reshape(-1))
+
+
+def array_digests(packed: dict[str, np.ndarray], layout: list[dict]) -> dict[str, int]:
+    """:func:`digest` of every array, by layout path: written with each checkpoint so that a
+    restore notices bytes that changed on disk (a flipped bit reads back without error)."""
+    return {path: digest(array) for path, array in arrays_by_path(packed, layout).items()}
+
+
+def data_files(item_dir: Path) -> list[str]:
+    """The files under a checkpoint item's directory (where its arrays' bytes lie)."""
+    return sorted(str(p) for p in Path(item_dir).rglob("*") if p.is_file())
 
 
 def packed_shapes(layout: list[dict]) -> dict[str, jax.ShapeDtypeStruct]:
@@ -203,7 +220,7 @@ class Checkpoints:
             max_to_keep=self.keep, cleanup_tmp_directories=True, enable_async_checkpointing=True,
         )
         self.manager = ocp.CheckpointManager(
-            self.directory.absolute(), options=options, item_names=("state", "layout", "config"),
+            self.directory.absolute(), options=options, item_names=("state", "layout", "config", "digests"),
         )
 
     @property
@@ -225,10 +242,12 @@ class Checkpoints:
         The write finishes in the background; ``wait`` blocks until it is on disk.
         """
         start = time.perf_counter()
+        packed, layout = pack(state), layout_of(state)
         self.manager.save(epoch, args=ocp.args.Composite(
-            state=ocp.args.StandardSave(pack(state)),
-            layout=ocp.args.JsonSave(layout_of(state)),
+            state=ocp.args.StandardSave(packed),
+            layout=ocp.args.JsonSave(layout),
             config=ocp.args.JsonSave(dataclasses.asdict(config)),
+            digests=ocp.args.JsonSave({"algorithm": "crc32", "arrays": array_digests(packed, layout)}),
         ))
         return time.perf_counter() - start
 
@@ -278,6 +297,7 @@ class Checkpoints:
             reason = str(err).split(" [tensorstore_spec=")[0]  # drop tensorstore's long spec dump
             raise CheckpointError(f"{step_dir / 'state'}: unreadable ({type(err).__name__}: {reason})") from err
         arrays = arrays_by_path(restored.state, saved_layout)
+        self._verify(epoch, arrays)
         if saved_layout != layout:  # written by an earlier version
             for upgrade in UPGRADES:
                 arrays = upgrade(arrays, layout)
@@ -285,6 +305,25 @@ class Checkpoints:
             if mismatch:
                 raise CheckpointError(f"{step_dir / 'layout'} does not fit this version's train state: {mismatch}")
         return tree_from_arrays(arrays, template, layout)
+
+    def _verify(self, epoch: int, arrays: dict[str, np.ndarray]) -> None:
+        """Check every restored array against the digests written with it (checkpoints written
+        before digests existed have none and are not checked)."""
+        step_dir = self.step_dir(epoch)
+        if not (step_dir / "digests").exists():
+            return
+        try:
+            written = self.manager.restore(epoch, args=ocp.args.Composite(digests=ocp.args.JsonRestore())).digests
+        except Exception as err:  # orbax and JSON raise many types; all mean "unreadable"
+            raise CheckpointError(f"{step_dir / 'digests'}: unreadable ({type(err).__name__}: {err})") from err
+        for path, expected in written["arrays"].items():
+            found = digest(arrays[path]) if path in arrays else None
+            if found != expected:
+                raise CheckpointError(
+                    f"{step_dir}: array {path} does not match the checksum written with it (crc32 "
+                    f"{found if found is None else format(found, '08x')}, written {expected:08x}): the checkpoint "
+                    f"changed on disk; its bytes lie in {', '.join(data_files(step_dir / 'state'))}"
+                )
 
     def restore_latest(self, template: Any, expected: Any, fallback: bool = False) -> tuple[int, Any]:
         """The newest checkpoint that restores, as ``(epoch, state)``.
