@@ -6,6 +6,7 @@ Plain Python (no JAX import), so the CLI can reject bad input before compiling a
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Sequence
 
 from mjx_emp.errors import ConfigError
@@ -31,6 +32,23 @@ def check_counts(cfg, names: tuple[str, ...]) -> None:
     for name in names:
         if getattr(cfg, name) < 1:
             raise ConfigError(f"{name}: must be >= 1; got {getattr(cfg, name)}")
+
+
+def check_finite(cfg) -> None:
+    """Every float field, and every float in a tuple field, is a finite number (an inf or NaN
+    setting would only surface as a diverged run)."""
+    for field in dataclasses.fields(cfg):
+        value = getattr(cfg, field.name)
+        if any(isinstance(v, float) and not math.isfinite(v) for v in (value if isinstance(value, tuple) else (value,))):
+            raise ConfigError(f"{field.name}: must be a finite number; got {value}")
+
+
+def check_capacity(cfg, name: str, least: dict[str, int]) -> None:
+    """Buffer size ``name`` holds at least each of ``least`` (what -> rows): a minibatch, one
+    collection; smaller, the buffer would be sampled before it could hold what it samples."""
+    for what, rows in least.items():
+        if getattr(cfg, name) < rows:
+            raise ConfigError(f"{name}: must hold at least {what} ({rows} rows); got {getattr(cfg, name)}")
 
 
 def check_shards(cfg, split_fields: tuple[str, ...]) -> None:

@@ -46,6 +46,28 @@ def test_bad_config_exits_2_naming_the_field(args, field):
     assert field in result.stderr
 
 
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["train", "point-mass-k1", "--sigma-gs", "inf"], "sigma_gs: must be a finite number; got (inf,)"),
+        (["train", "point-mass-k1", "--tau", "nan"], "tau: must be in (0, 1]; got nan"),
+        (["train", "point-mass-k1", "--replay-capacity", "1", "--batch-size", "128"],
+         "replay_capacity: must hold at least a minibatch (batch_size) (128 rows); got 1"),
+        (["train", "point-mass-k1", "--start-capacity", "8"],
+         "start_capacity: must hold at least one start state per environment (num_envs) (64 rows); got 8"),
+        (["train", "metra-point-mass", "--batch-size", "16", "--replay-capacity", "100"],
+         "replay_capacity: must hold at least one collection (num_envs x collect_steps) (160 rows); got 100"),
+        (["train", "point-mass-k1", "--shards", "3"], "num_envs: must be a multiple of shards (3); got 64"),
+        (["train", "point-mass-k1", "--seeds", "0", "1", "--shards", "2"],
+         "seeds: a seed group trains on one device, unsplit; got shards=2"),
+    ],
+)
+def test_bad_values_exit_2_with_the_whole_reason(args, message):
+    result = cli(*args)
+    assert result.returncode == 2, result.stderr
+    assert message in result.stderr, result.stderr
+
+
 def test_help_explains_fields():
     result = cli("rollout", "--help")
     assert result.returncode == 0

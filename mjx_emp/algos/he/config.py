@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from mjx_emp.checks import check_counts, check_learning, check_levels, check_shards
+from mjx_emp.checks import check_capacity, check_counts, check_finite, check_learning, check_levels, check_shards
 from mjx_emp.envs.registry import DOMAINS
 from mjx_emp.errors import ConfigError
 
@@ -155,6 +155,13 @@ def check_train_config(cfg: TrainConfig, positive: tuple[str, ...] = _POSITIVE) 
                     ("action_noise", "goal_noise", "gs_noise"))
     if not 0 <= cfg.relabel <= 1:
         raise ConfigError(f"relabel: a fraction in [0, 1]; got {cfg.relabel}")
+    check_finite(cfg)
+    # One step of every environment; a collection chunk larger than the ring keeps its newest rows.
+    check_capacity(cfg, "replay_capacity", {"a minibatch (batch_size)": cfg.batch_size,
+                                            "one step of every environment (num_envs)": cfg.num_envs})
+    check_capacity(cfg, "gs_replay_capacity", {"a minibatch (batch_size)": cfg.batch_size,
+                                               "one episode per environment (num_envs)": cfg.num_envs})
+    check_capacity(cfg, "start_capacity", {"one start state per environment (num_envs)": cfg.num_envs})
 
 
 @dataclasses.dataclass(frozen=True)
@@ -253,3 +260,6 @@ def check_phase2_config(cfg: Phase2Config, goal_size: int | None = None) -> None
     check_learning(cfg, ("actor_lr", "critic_lr"), ("action_noise",))
     if cfg.phase1_epoch < -1:
         raise ConfigError(f"phase1_epoch: an epoch >= 0, or -1 for the newest; got {cfg.phase1_epoch}")
+    check_finite(cfg)
+    check_capacity(cfg, "replay_capacity", {"a minibatch (batch_size)": cfg.batch_size,
+                                            "one episode of attempts per environment (num_envs x n)": cfg.num_envs * cfg.n})

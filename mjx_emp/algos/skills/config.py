@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from mjx_emp.checks import check_counts, check_learning, check_shards
+from mjx_emp.checks import check_capacity, check_counts, check_finite, check_learning, check_shards
 from mjx_emp.envs.registry import DOMAINS
 from mjx_emp.errors import ConfigError
 
@@ -116,8 +116,8 @@ def check_skill_config(cfg: SkillConfig) -> None:
         value = getattr(cfg, name)
         if not 0 < value < float("inf"):
             raise ConfigError(f"{name}: must be a finite number > 0; got {value}")
-    if cfg.replay_capacity < cfg.batch_size:
-        raise ConfigError(f"replay_capacity: must be >= batch_size ({cfg.batch_size}); got {cfg.replay_capacity}")
+    check_capacity(cfg, "replay_capacity", {"a minibatch (batch_size)": cfg.batch_size,
+                                            "one collection (num_envs x collect_steps)": cfg.num_envs * cfg.collect_steps})
     if cfg.min_replay > cfg.replay_capacity:
         raise ConfigError(f"min_replay: must be <= replay_capacity ({cfg.replay_capacity}); got {cfg.min_replay}")
     if isinstance(cfg, DadsConfig) and cfg.prior_samples < 1:
@@ -126,3 +126,4 @@ def check_skill_config(cfg: SkillConfig) -> None:
         for name in ("dual_lam", "dual_slack"):
             if not 0 < getattr(cfg, name) < float("inf"):
                 raise ConfigError(f"{name}: must be a finite number > 0; got {getattr(cfg, name)}")
+    check_finite(cfg)
