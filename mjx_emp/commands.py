@@ -35,6 +35,13 @@ class TrainExperiment(Generic[ConfigT]):
     """Local devices to train on. An unsplit config is split into one shard per device (its
     environments, minibatch and buffers divided among them, gradients averaged; see
     ``--shards``); 0: every local device (one on a machine with one GPU or a CPU)."""
+    coordinator_address: str = ""
+    """Several hosts: host:port of process 0's coordinator (or JAX_COORDINATOR_ADDRESS); every
+    process runs the same command with its --process-id and the same --run-dir."""
+    num_processes: int = 0
+    """Several hosts: how many processes (or JAX_NUM_PROCESSES)."""
+    process_id: int = -1
+    """Several hosts: this process's index, 0 the lead (or JAX_PROCESS_ID)."""
     seeds: tuple[int, ...] = ()
     """Train these seeds of the config together, as one vmapped program (the config's own seed
     is then unused); each seed gets its own run directory RUN_DIR-s<seed>, resumable and

@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import socket
 import subprocess
 import sys
 import textwrap
@@ -95,3 +96,27 @@ def test_cli_trains_on_two_devices_and_resumes_on_one(tmp_path):
     evaluated = subprocess.run(mjx_emp("eval", str(run_dir), "--episodes", "8", "--out", str(tmp_path / "e.json")),
                                env=env, capture_output=True, text=True, timeout=900)
     assert evaluated.returncode == 0, evaluated.stderr
+
+
+def free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+def test_two_processes_train_one_split_run_and_the_lead_writes_it(tmp_path):
+    """jax.distributed on localhost: each process holds one shard on its CPU device; process 0
+    writes config, metrics and checkpoints (the whole state gathered to it)."""
+    run_dir, port = tmp_path / "two-hosts", free_port()
+    small = ["--num-envs", "8", "--hidden", "16", "--batch-size", "16", "--gc-iterations", "2", "--gc-grad-steps",
+             "3", "--replay-capacity", "2048", "--start-chain", "2", "--epochs", "2", "--run-dir", str(run_dir),
+             "--coordinator-address", f"127.0.0.1:{port}", "--num-processes", "2"]
+    processes = [subprocess.Popen(mjx_emp("train", "point-mass-k1", *small, "--process-id", str(index)),
+                                  stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for index in (0, 1)]
+    outputs = [process.communicate(timeout=900) for process in processes]
+    for process, (_, err) in zip(processes, outputs):
+        assert process.returncode == 0, err[-3000:]
+    assert "split into 2 shards on 2 device(s)" in outputs[0][0]
+    assert json.loads((run_dir / "config.json").read_text())["shards"] == 2
+    assert [json.loads(line)["epoch"] for line in (run_dir / "metrics.jsonl").read_text().splitlines()] == [1, 2]
+    assert sorted(int(p.name) for p in (run_dir / "checkpoints").iterdir() if p.name.isdigit()) == [0, 1, 2]

@@ -342,8 +342,9 @@ def make_env(name: str, heading_frame: bool = False) -> Env:
     d = mujoco.MjData(m)
     d.qpos[:] = _home_qpos(m)
     mujoco.mj_forward(m, d)
-    model = mjx.put_model(m, impl="jax")
-    template = mjx.put_data(m, d, impl="jax")
+    device = jax.local_devices()[0]  # this process's (MJX's default is the first device of all processes)
+    model = mjx.put_model(m, device=device, impl="jax")
+    template = mjx.put_data(m, d, device=device, impl="jax")
     env = Env(
         name=name,
         mj_model=m,

@@ -211,15 +211,21 @@ class Checkpoints:
     keep: int = 3
     config_type: type = TrainConfig
     """The config dataclass stored with each checkpoint."""
-    manager: ocp.CheckpointManager = dataclasses.field(init=False, repr=False)
+    manager: ocp.CheckpointManager | None = dataclasses.field(init=False, repr=False)
+    """None on a process other than the lead of a several-host run: only the lead writes."""
 
     def __post_init__(self):
         if self.keep < 1:
             raise ValueError(f"keep_checkpoints: must be >= 1; got {self.keep}")
+        several_hosts = {}
+        if jax.process_count() > 1:  # the lead (process 0) alone reads and writes, the whole state gathered to it
+            self.directory.mkdir(parents=True, exist_ok=True)
+            several_hosts = dict(create=False, multiprocessing_options=ocp.options.MultiprocessingOptions(
+                primary_host=0, active_processes={0}))
         options = ocp.CheckpointManagerOptions(
-            max_to_keep=self.keep, cleanup_tmp_directories=True, enable_async_checkpointing=True,
+            max_to_keep=self.keep, cleanup_tmp_directories=True, enable_async_checkpointing=True, **several_hosts,
         )
-        self.manager = ocp.CheckpointManager(
+        self.manager = None if jax.process_index() != 0 else ocp.CheckpointManager(
             self.directory.absolute(), options=options, item_names=("state", "layout", "config", "digests"),
         )
 
@@ -233,14 +239,17 @@ class Checkpoints:
         return self.directory / str(epoch)
 
     def epochs(self) -> list[int]:
-        """Epochs with a complete checkpoint, oldest first."""
-        return sorted(self.manager.all_steps())
+        """Epochs with a complete checkpoint, oldest first (none known to a process that is not the lead)."""
+        return sorted(self.manager.all_steps()) if self.manager else []
 
     def save(self, epoch: int, state: Any, config: Any) -> float:
         """Start writing ``state`` as ``epoch``'s checkpoint; returns the seconds this call blocked.
 
-        The write finishes in the background; ``wait`` blocks until it is on disk.
+        The write finishes in the background; ``wait`` blocks until it is on disk. A process
+        that is not the lead writes nothing.
         """
+        if self.manager is None:
+            return 0.0
         start = time.perf_counter()
         packed, layout = pack(state), layout_of(state)
         self.manager.save(epoch, args=ocp.args.Composite(
@@ -253,11 +262,13 @@ class Checkpoints:
 
     def wait(self) -> None:
         """Block until every started save is committed to disk."""
-        self.manager.wait_until_finished()
+        if self.manager:
+            self.manager.wait_until_finished()
 
     def close(self) -> None:
         """Finish pending writes and release orbax's background threads."""
-        self.manager.close()
+        if self.manager:
+            self.manager.close()
 
     def __enter__(self) -> Checkpoints:
         return self

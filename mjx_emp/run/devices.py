@@ -23,6 +23,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from mjx_emp.algos.registry import make_agent
 from mjx_emp.errors import ConfigError
+from mjx_emp.run.hosts import place_on
 
 DEVICE_AXIS = "devices"
 """The mesh axis the shards are spread over."""
@@ -31,15 +32,16 @@ LOCAL_AXIS = "local_shards"
 
 
 def choose_devices(shards: int, requested: int) -> int:
-    """How many local devices a run of ``shards`` shards uses: ``requested`` (which must divide
-    ``shards`` and exist), or with 0 the most local devices that divide ``shards``."""
-    available = jax.local_device_count()
+    """How many devices a run of ``shards`` shards uses: ``requested`` (which must divide
+    ``shards`` and exist), or with 0 the most devices that divide ``shards``. With several
+    hosts, the devices of every process count."""
+    available = jax.device_count()
     if requested < 0:
         raise ConfigError(f"num_devices: must be >= 0 (0: every local device that fits); got {requested}")
     if requested == 0:
         return max(d for d in range(1, min(available, shards) + 1) if shards % d == 0)
     if requested > available:
-        raise ConfigError(f"num_devices: this machine has {available} local device(s); got {requested}")
+        raise ConfigError(f"num_devices: there are {available} device(s); got {requested}")
     if shards % requested:
         raise ConfigError(f"num_devices: must divide the run's shards ({shards}); got {requested}")
     return requested
@@ -67,7 +69,9 @@ class ShardedAgent:
         # Built here, never inside a trace: an environment made while tracing would hold tracers.
         object.__setattr__(self, "local", make_agent(self.cfg, (LOCAL_AXIS, DEVICE_AXIS)))
         object.__setattr__(self, "alone", make_agent(self.cfg))
-        object.__setattr__(self, "mesh", Mesh(np.asarray(jax.local_devices()[: self.num_devices]), (DEVICE_AXIS,)))
+        for agent in (self.local, self.alone):  # constants computed outside any trace, on this process's device
+            agent.initial_obs  # noqa: B018
+        object.__setattr__(self, "mesh", Mesh(np.asarray(jax.devices()[: self.num_devices]), (DEVICE_AXIS,)))
         # Shardings fixed in and out, so the state an epoch returns is the state the next one
         # compiled for (left to propagation, the second epoch compiled again).
         epoch = jax.jit(functools.partial(_shards_epoch, self), in_shardings=(self.sharding,),
@@ -93,7 +97,7 @@ class ShardedAgent:
 
     def place(self, state: Any) -> Any:
         """``state`` (stacked on the shard axis, anywhere) on this program's devices."""
-        return jax.device_put(state, self.sharding)
+        return place_on(state, self.sharding)
 
     def train_epoch(self, state: Any) -> tuple[Any, Any]:
         """One epoch of every shard as one jitted program."""

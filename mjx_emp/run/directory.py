@@ -48,7 +48,7 @@ def prepare_run_dir(path: str, field: str = "run_dir") -> Path:
     run_dir = Path(path)
     try:
         run_dir.mkdir(parents=True, exist_ok=True)
-        probe = run_dir / ".write-test"
+        probe = run_dir / f".write-test-{os.getpid()}"  # one per process: several hosts may probe at once
         probe.write_text("")
         probe.unlink()
     except OSError as err:
@@ -134,10 +134,13 @@ def _alone(state, stats) -> list[tuple[Any, Any]]:
 
 
 def _epoch_of(state) -> int:
-    """A train state's epoch (a split run's state holds it once per shard)."""
+    """A train state's epoch (a split run's state holds it once per shard, maybe on several hosts)."""
     import numpy as np
 
-    return int(np.asarray(state.epoch).reshape(-1)[0])
+    epoch = state.epoch
+    if not getattr(epoch, "is_fully_addressable", True):
+        epoch = epoch.addressable_shards[0].data  # every shard holds the same epoch
+    return int(np.asarray(epoch).reshape(-1)[0])
 
 
 def train_members(program, state, members: list[Member], report: Callable[[dict], None],
@@ -153,15 +156,19 @@ def train_members(program, state, members: list[Member], report: Callable[[dict]
     """
     import jax
 
+    from mjx_emp.run.hosts import gather_to_host, is_lead
+
     epochs = members[0].trainer.cfg.epochs
+    lead = is_lead()  # with several hosts, process 0 alone writes metrics (and checkpoints)
     with contextlib.ExitStack() as stack:
-        logs = [stack.enter_context(open(member.run_dir / METRICS_FILE, "a")) for member in members]
+        logs = [stack.enter_context(open(member.run_dir / METRICS_FILE, "a") if lead else open(os.devnull, "w"))
+                for member in members]
         while _epoch_of(split(state, None)[0][0]) < epochs:
             start = time.perf_counter()
             state, stats = program.train_epoch(state)
             jax.block_until_ready(state)
             seconds = time.perf_counter() - start
-            parts = split(state, stats)
+            parts = split(*gather_to_host((state, stats)))
             epoch = _epoch_of(parts[0][0])
             problems = [(m, m.trainer.divergence(*part)) for m, part in zip(members, parts)]
             problems = [(m, problem) for m, problem in problems if problem]
@@ -181,7 +188,7 @@ def train_members(program, state, members: list[Member], report: Callable[[dict]
                 metrics["checkpoint_blocked_s"] = save_seconds  # the write itself continues in the background
                 log.write(json.dumps(metrics) + "\n")
                 log.flush()
-                if member is members[0]:
+                if member is members[0] and lead:
                     report(metrics)
     for member in members:
         member.checkpoints.wait()
@@ -237,12 +244,15 @@ def write_config(run_dir: Path, cfg) -> None:
 
 
 def _train_new(trainer, state, run_dir: Path, keep_checkpoints: int, config_type: type):
-    """Write the config, checkpoint ``state`` as epoch 0, and train to the end."""
+    """Write the config, checkpoint ``state`` as epoch 0, and train to the end (with several
+    hosts, the lead writes)."""
     from mjx_emp.run.checkpoint import Checkpoints
+    from mjx_emp.run.hosts import gather_to_host, is_lead
 
-    write_config(run_dir, trainer.cfg)
+    if is_lead():
+        write_config(run_dir, trainer.cfg)
     checkpoints = Checkpoints(run_dir, keep_checkpoints, config_type)
-    checkpoints.save(0, state, trainer.cfg)
+    checkpoints.save(0, gather_to_host(state), trainer.cfg)
     return _train_to_the_end(trainer, state, checkpoints, run_dir)
 
 
@@ -266,7 +276,7 @@ def split_for_devices(cfg, num_devices: int):
     if num_devices == 0:
         import jax
 
-        num_devices = jax.local_device_count()
+        num_devices = jax.device_count()  # every device of every process
     return dataclasses.replace(cfg, shards=num_devices) if num_devices > 1 else cfg
 
 
@@ -274,7 +284,12 @@ def train(exp: TrainExperiment):
     """Train a new run of the config's algorithm (with ``exp.seeds``, one run per seed under one
     vmap: :mod:`mjx_emp.run.seeds`; split over devices per ``exp.num_devices``: :mod:`mjx_emp.run.devices`);
     returns the final state."""
+    from mjx_emp.run.hosts import join_hosts, wait_for_all
+
+    several = join_hosts(exp.coordinator_address, exp.num_processes, exp.process_id)
     if exp.seeds:
+        if several:
+            raise ConfigError("seeds: a seed group trains in one process; drop --seeds or the coordinator")
         from mjx_emp.run.seeds import train_seeds
 
         return train_seeds(exp)
@@ -283,7 +298,10 @@ def train(exp: TrainExperiment):
     _check_keep(exp.keep_checkpoints)
     cfg = split_for_devices(exp.config, exp.num_devices)
     algorithm.check(cfg)
+    if several and not exp.run_dir:
+        raise ConfigError("run_dir: several hosts must be given the same --run-dir (on a shared filesystem)")
     run_dir = fresh_run_dir(exp.run_dir or default_run_dir(cfg), "run_dir", "a run", "mjx-emp train")
+    wait_for_all("mjx-emp: every process checked the run directory")  # before the lead writes into it
     print(f"run directory: {run_dir}", flush=True)
     trainer = training_program(cfg, exp.num_devices)
     if cfg.shards > 1:
