@@ -156,7 +156,8 @@ def main(args: Args) -> None:
         p2_text = f"{p2['mean']:.3g} ± {p2['std']:.2g} ({len(distances)})" if p2 else "-"
         print(f"| {preset} | {len(mine)} | {mine[0]['env_steps']:.3g} | {sum(r['wall_s'] for r in mine) / len(mine):.0f} "
               f"| {cells['mean']:.3g} ± {cells['std']:.2g} | {std} | {p2_text} |")
-    print(f"wrote {out}")
+    if not args.report_only:
+        print(f"wrote {out}")
     if args.charts:
         for env in dict.fromkeys(r["env"] for r in rows):
             print(f"wrote {draw_charts([r for r in rows if r['env'] == env], Path(args.charts) / f'baselines_{env}.png')}")
