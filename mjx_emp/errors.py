@@ -1,7 +1,8 @@
 """Every error type the library raises on purpose, each with a message a user can act on.
 
 The CLI maps them to exit codes (run.directory.main_guarded): bad input and unusable
-checkpoints exit 2, a diverged run 1, no offscreen GL 3.
+checkpoints exit 2, a diverged run 1, no offscreen GL 3, a run stopped by SIGINT or SIGTERM
+128 + the signal's number (130, 143).
 """
 
 
@@ -19,3 +20,12 @@ class TrainingDiverged(RuntimeError):
 
 class RenderError(RuntimeError):
     """No offscreen OpenGL context could be made; the message says which system package helps."""
+
+
+class Interrupted(RuntimeError):
+    """SIGINT or SIGTERM stopped a run; its checkpoint writes were finished first. ``signum``
+    is the signal's number; the message names the newest checkpoint."""
+
+    def __init__(self, message: str, signum: int):
+        super().__init__(message)
+        self.signum = signum

@@ -186,16 +186,18 @@ def test_metrics_after_the_resumed_epoch_are_dropped(tmp_path):
 
 # ---- the command line, in separate processes that are killed for real ---------------------
 
-def kill_when(process: subprocess.Popen, ready, timeout: float = 300) -> None:
-    """SIGKILL ``process`` as soon as ``ready()`` holds (polled every few milliseconds)."""
+def kill_when(process: subprocess.Popen, ready, timeout: float = 300, signum: int = signal.SIGKILL) -> None:
+    """Send ``signum`` (SIGKILL) to ``process`` as soon as ``ready()`` holds (polled every few
+    milliseconds) and wait for it to end."""
     deadline = time.monotonic() + timeout
     while not ready():
         assert process.poll() is None, f"process ended before it could be killed: {process.communicate()}"
         assert time.monotonic() < deadline, "condition never held"
         time.sleep(0.002)
-    process.send_signal(signal.SIGKILL)
+    process.send_signal(signum)
     process.wait()
-    assert process.returncode == -signal.SIGKILL
+    if signum == signal.SIGKILL:
+        assert process.returncode == -signal.SIGKILL
 
 
 def final_state(run_dir: Path, epoch: int):
@@ -205,11 +207,38 @@ def final_state(run_dir: Path, epoch: int):
         return checkpoints.restore(epoch, jax.eval_shape(Trainer(cfg).init), cfg)
 
 
-def test_sigkill_then_resume_is_bitwise_identical_to_an_uninterrupted_run(tmp_path):
-    straight, killed = tmp_path / "straight", tmp_path / "killed"
+@pytest.fixture(scope="module")
+def straight_run(tmp_path_factory):
+    """SMALL trained to the end without a stop."""
+    straight = tmp_path_factory.mktemp("straight") / "run"
     result = run_cli("train", *SMALL, "--run-dir", str(straight))
     assert result.returncode == 0, result.stderr
+    return straight
 
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT])
+def test_sigterm_or_sigint_stops_after_the_write_names_the_checkpoint_and_resumes_bitwise(straight_run, tmp_path,
+                                                                                            signum):
+    stopped = tmp_path / "stopped"
+    process = subprocess.Popen(mjx_emp("train", *SMALL, "--run-dir", str(stopped)), stdout=subprocess.DEVNULL,
+                               stderr=subprocess.PIPE, text=True)
+    kill_when(process, lambda: (stopped / "checkpoints" / "2").exists(), signum=signum)
+    err = process.stderr.read()
+    assert process.returncode == 128 + signum, err
+    kept = sorted(int(p.name) for p in (stopped / "checkpoints").iterdir() if p.name.isdigit())
+    assert not [p for p in (stopped / "checkpoints").iterdir() if "tmp" in p.name]  # no write left half done
+    assert f"stopped by {signal.Signals(signum).name}; the newest checkpoint is epoch {kept[-1]} in" in err
+    assert kept[-1] < 4, "the run finished before the signal"
+    lines = [json.loads(line) for line in (stopped / "metrics.jsonl").read_text().splitlines()]
+    assert [m["epoch"] for m in lines] == list(range(1, kept[-1] + 1))  # a metrics line for every checkpoint
+
+    result = run_cli("train", "--resume", str(stopped))
+    assert result.returncode == 0, result.stderr
+    assert_bitwise_equal(final_state(stopped, 4), final_state(straight_run, 4))
+
+
+def test_sigkill_then_resume_is_bitwise_identical_to_an_uninterrupted_run(straight_run, tmp_path):
+    straight, killed = straight_run, tmp_path / "killed"
     process = subprocess.Popen(mjx_emp("train", *SMALL, "--run-dir", str(killed)),
                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     kill_when(process, lambda: (killed / "checkpoints" / "2").exists())

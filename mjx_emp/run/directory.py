@@ -16,6 +16,7 @@ import dataclasses
 import functools
 import json
 import os
+import signal
 import sys
 import time
 from collections.abc import Callable, Iterator
@@ -26,7 +27,7 @@ from mjx_emp.algos.he.config import Phase2Config, check_phase2_config
 from mjx_emp.algos.registry import algorithm_of, config_from_json, config_to_json, make_agent
 from mjx_emp.checks import config_from_dict
 from mjx_emp.commands import Phase2Experiment, ResumeExperiment, TrainExperiment
-from mjx_emp.errors import CheckpointError, ConfigError, RenderError, TrainingDiverged
+from mjx_emp.errors import CheckpointError, ConfigError, Interrupted, RenderError, TrainingDiverged
 
 CONFIG_FILE = "config.json"
 METRICS_FILE = "metrics.jsonl"
@@ -154,12 +155,65 @@ def train_members(program, state, members: list[Member], report: Callable[[dict]
     good epoch. ``report`` sees the first member's metrics. ``seconds`` in a member's
     metrics is the wall time of the whole program's epoch.
     """
-    import jax
-
     from mjx_emp.run.hosts import gather_to_host, is_lead
 
     epochs = members[0].trainer.cfg.epochs
     lead = is_lead()  # with several hosts, process 0 alone writes metrics (and checkpoints)
+    stops = _SignalStop()
+    try:
+        with stops.installed():
+            return _train_members(program, state, members, report, split, gather_to_host, lead, epochs, stops)
+    except Interrupted as stop:
+        for member in members:
+            member.checkpoints.wait()  # the write in flight completes before we go
+        kept = members[0].checkpoints.epochs()
+        newest = f"epoch {kept[-1]} in {members[0].checkpoints.directory}" if kept else "none"
+        raise Interrupted(f"stopped by {signal.Signals(stop.signum).name}; the newest checkpoint is {newest}; "
+                          f"continue with `--resume {members[0].run_dir}`", stop.signum) from None
+
+
+class _SignalStop:
+    """While training, SIGINT and SIGTERM raise :class:`Interrupted`: at once between two Python
+    steps (a running epoch's compiled call finishes first), or, inside :meth:`held` (an epoch's
+    checkpoint and metrics line, which belong together), as soon as it ends."""
+
+    def __init__(self):
+        self.holding, self.pending = False, None
+
+    def _stop(self, signum, frame):
+        if self.holding:
+            self.pending = signum
+            return
+        raise Interrupted(signal.Signals(signum).name, signum)
+
+    @contextlib.contextmanager
+    def installed(self) -> Iterator[None]:
+        try:
+            previous = {signum: signal.signal(signum, self._stop) for signum in (signal.SIGINT, signal.SIGTERM)}
+        except ValueError:  # not the main thread: signals are not ours to take
+            yield
+            return
+        try:
+            yield
+        finally:
+            for signum, handler in previous.items():
+                signal.signal(signum, handler)
+
+    @contextlib.contextmanager
+    def held(self) -> Iterator[None]:
+        self.holding = True
+        try:
+            yield
+        finally:
+            self.holding = False
+        if self.pending is not None:
+            raise Interrupted(signal.Signals(self.pending).name, self.pending)
+
+
+def _train_members(program, state, members, report, split, gather_to_host, lead: bool, epochs: int,
+                   stops: _SignalStop):
+    import jax
+
     with contextlib.ExitStack() as stack:
         logs = [stack.enter_context(open(member.run_dir / METRICS_FILE, "a") if lead else open(os.devnull, "w"))
                 for member in members]
@@ -182,14 +236,15 @@ def train_members(program, state, members: list[Member], report: Callable[[dict]
                     f"checkpoint is epoch {kept[-1] if kept else None} in {member.checkpoints.directory}"
                     + (f" (and likewise for {len(members) - 1} other seed run(s))" if len(members) > 1 else "")
                 )
-            for member, log, (member_state, member_stats) in zip(members, logs, parts):
-                save_seconds = member.checkpoints.save(epoch, member_state, member.trainer.cfg)
-                metrics = member.trainer.metrics(member_state, member_stats, seconds)
-                metrics["checkpoint_blocked_s"] = save_seconds  # the write itself continues in the background
-                log.write(json.dumps(metrics) + "\n")
-                log.flush()
-                if member is members[0] and lead:
-                    report(metrics)
+            with stops.held():  # a checkpoint and its metrics line are written together
+                for member, log, (member_state, member_stats) in zip(members, logs, parts):
+                    save_seconds = member.checkpoints.save(epoch, member_state, member.trainer.cfg)
+                    metrics = member.trainer.metrics(member_state, member_stats, seconds)
+                    metrics["checkpoint_blocked_s"] = save_seconds  # the write itself continues in the background
+                    log.write(json.dumps(metrics) + "\n")
+                    log.flush()
+                    if member is members[0] and lead:
+                        report(metrics)
     for member in members:
         member.checkpoints.wait()
     return state
@@ -440,6 +495,9 @@ def main_guarded(command: Callable, exp) -> None:
     )
     try:
         command(exp)
+    except Interrupted as stop:
+        print(f"mjx-emp: {stop}", file=sys.stderr)
+        sys.exit(128 + stop.signum)
     except tuple(kind for kind, _, _ in failures) as err:
         what, code = next((what, code) for kind, what, code in failures if isinstance(err, kind))
         print(f"mjx-emp: {what}: {err}", file=sys.stderr)
