@@ -343,3 +343,25 @@ def test_a_corrupt_array_is_named_with_its_checkpoint(saved_run, tmp_path):
     message = str(err.value)
     assert f"{copy / 'checkpoints' / '2'}: array ." in message and "does not match the checksum written with it" in message
     assert str(largest) in message
+
+
+def test_a_second_writer_is_refused_naming_the_holder_and_a_killed_holders_lock_is_taken_over(tmp_path):
+    run_dir = tmp_path / "run"
+    process = subprocess.Popen(mjx_emp("train", *SMALL, "--epochs", "40", "--run-dir", str(run_dir)),
+                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 300
+        while not (run_dir / "checkpoints" / "1").exists():
+            assert process.poll() is None and time.monotonic() < deadline
+            time.sleep(0.05)
+        second = run_cli("train", "--resume", str(run_dir))
+        assert second.returncode == 2, second.stderr
+        assert f"resume: '{run_dir}' is in use by process {process.pid} on " in second.stderr
+    finally:
+        process.kill()
+        process.wait()
+    assert (run_dir / ".lock").read_text().startswith(f"{process.pid} on ")  # left behind by the killed writer
+    resumed = run_cli("train", "--resume", str(run_dir), "--epochs", "2")
+    assert resumed.returncode == 0, resumed.stderr
+    assert f"taking over the lock of {run_dir} left by process {process.pid}" in resumed.stdout
+    assert (run_dir / ".lock").read_text() == ""  # released when the resume ended

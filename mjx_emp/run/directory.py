@@ -276,6 +276,54 @@ def _train_to_the_end(trainer, state, checkpoints, run_dir: Path):
         return train_epochs(trainer, state, checkpoints, run_dir, report)
 
 
+LOCK_FILE = ".lock"
+"""In a run directory while a process trains it: that process's id and host (flock-ed)."""
+
+
+@contextlib.contextmanager
+def run_lock(run_dir: Path, field: str) -> Iterator[None]:
+    """Hold RUN_DIR/.lock while a command writes the run: a second writer (train, resume, phase
+    2) is refused with a ConfigError naming the process that holds it. The lock is the
+    kernel's (``flock``), so it goes with its process however that ends; a lock file left by a
+    killed process is taken over with a note. With several hosts only the lead locks."""
+    import fcntl
+    import socket
+
+    from mjx_emp.run.hosts import is_lead
+
+    if not is_lead():
+        yield
+        return
+    path = Path(run_dir) / LOCK_FILE
+    handle = open(path, "a+")
+    try:
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            handle.seek(0)
+            holder = handle.read().strip() or "unknown"
+            raise ConfigError(f"{field}: {str(run_dir)!r} is in use by process {holder} (lock {path}); wait for it "
+                              f"to end or stop it") from None
+        handle.seek(0)
+        left = handle.read().strip()
+        if left:
+            print(f"note: taking over the lock of {run_dir} left by process {left}, which no longer holds it",
+                  flush=True)
+        handle.seek(0)
+        handle.truncate()
+        handle.write(f"{os.getpid()} on {socket.gethostname()}\n")
+        handle.flush()
+        try:
+            yield
+        finally:
+            handle.seek(0)
+            handle.truncate()  # an empty lock file: released on purpose, nothing to take over
+            handle.flush()
+            fcntl.flock(handle, fcntl.LOCK_UN)
+    finally:
+        handle.close()
+
+
 def fresh_run_dir(path: str, field: str, what: str, command: str) -> Path:
     """Create the directory of a new run; one that already holds ``what`` is refused, naming ``field``."""
     run_dir = prepare_run_dir(path, field)
@@ -358,10 +406,11 @@ def train(exp: TrainExperiment):
     run_dir = fresh_run_dir(exp.run_dir or default_run_dir(cfg), "run_dir", "a run", "mjx-emp train")
     wait_for_all("mjx-emp: every process checked the run directory")  # before the lead writes into it
     print(f"run directory: {run_dir}", flush=True)
-    trainer = training_program(cfg, exp.num_devices)
-    if cfg.shards > 1:
-        print(f"split into {cfg.shards} shards on {trainer.num_devices} device(s)", flush=True)
-    return _train_new(trainer, trainer.init(), run_dir, exp.keep_checkpoints, algorithm.config_type)
+    with run_lock(run_dir, "run_dir"):
+        trainer = training_program(cfg, exp.num_devices)
+        if cfg.shards > 1:
+            print(f"split into {cfg.shards} shards on {trainer.num_devices} device(s)", flush=True)
+        return _train_new(trainer, trainer.init(), run_dir, exp.keep_checkpoints, algorithm.config_type)
 
 
 def _restore(run_dir: Path, trainer, template, fallback: bool = False, epoch: int | None = None):
@@ -417,14 +466,16 @@ def _resume(exp: ResumeExperiment, load: Callable):
     """Continue a run directory from its newest good checkpoint (``load`` restores it)."""
     _check_keep(exp.keep_checkpoints)
     run_dir = Path(exp.resume)
-    trainer, epoch, state = load(run_dir, exp.fallback, exp.epochs, field="resume")
-    from mjx_emp.run.checkpoint import Checkpoints
+    read_run_config(run_dir, "resume")  # a directory that is no run is refused before anything is written
+    with run_lock(run_dir, "resume"):
+        trainer, epoch, state = load(run_dir, exp.fallback, exp.epochs, field="resume")
+        from mjx_emp.run.checkpoint import Checkpoints
 
-    print(f"resuming {run_dir} from epoch {epoch}", flush=True)
-    keep_metrics_through(run_dir / METRICS_FILE, epoch)
-    write_config(run_dir, trainer.cfg)
-    checkpoints = Checkpoints(run_dir, exp.keep_checkpoints, type(trainer.cfg))
-    return _train_to_the_end(trainer, state, checkpoints, run_dir)
+        print(f"resuming {run_dir} from epoch {epoch}", flush=True)
+        keep_metrics_through(run_dir / METRICS_FILE, epoch)
+        write_config(run_dir, trainer.cfg)
+        checkpoints = Checkpoints(run_dir, exp.keep_checkpoints, type(trainer.cfg))
+        return _train_to_the_end(trainer, state, checkpoints, run_dir)
 
 
 def resume(exp: ResumeExperiment):
@@ -458,9 +509,10 @@ def train_phase2(exp: Phase2Experiment):
     cfg = dataclasses.replace(exp.config, phase1_epoch=epoch)
     trainer = make_phase2_trainer(skills, cfg)
     out = fresh_run_dir(exp.out or str(Path(exp.run_dir) / PHASE2_SUBDIR), "out", "a phase-2 run", "mjx-emp phase2")
-    print(f"phase 2 on the skills of {exp.run_dir} (epoch {epoch}), writing to {out}", flush=True)
-    write_atomically(out / SKILLS_FILE, json.dumps(config_json(skills.cfg), indent=1))
-    return _train_new(trainer, trainer.init(skills_state), out, exp.keep_checkpoints, Phase2Config)
+    with run_lock(out, "out"):
+        print(f"phase 2 on the skills of {exp.run_dir} (epoch {epoch}), writing to {out}", flush=True)
+        write_atomically(out / SKILLS_FILE, json.dumps(config_json(skills.cfg), indent=1))
+        return _train_new(trainer, trainer.init(skills_state), out, exp.keep_checkpoints, Phase2Config)
 
 
 def load_phase2(phase2_dir: Path, fallback: bool = False, epochs: int | None = None, field: str = "run_dir"):

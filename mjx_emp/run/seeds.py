@@ -9,6 +9,7 @@ own ``seed``), metrics and checkpoints, so it resumes, evaluates and plots on it
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 from pathlib import Path
@@ -76,7 +77,6 @@ def check_seeds(seeds: tuple[int, ...]) -> None:
 def train_seeds(exp: TrainExperiment) -> Any:
     """Train ``exp.seeds`` of ``exp.config`` as one vmapped program, one run directory per
     seed (RUN_DIR-s<seed>); returns the stacked final state."""
-    from mjx_emp.run.checkpoint import Checkpoints
 
     algorithm = algorithm_of(exp.config)
     algorithm.check(exp.config)
@@ -89,6 +89,15 @@ def train_seeds(exp: TrainExperiment) -> Any:
     base = exp.run_dir or run.default_run_dir(exp.config)
     dirs = [run.fresh_run_dir(path, "run_dir", "a run", "mjx-emp train") for path in seed_run_dirs(base, exp.seeds)]
     print(f"run directories: {', '.join(str(d) for d in dirs)}", flush=True)
+    with contextlib.ExitStack() as locks:
+        for run_dir in dirs:
+            locks.enter_context(run.run_lock(run_dir, "run_dir"))
+        return _train_group(exp, algorithm, dirs)
+
+
+def _train_group(exp: TrainExperiment, algorithm, dirs: list[Path]) -> Any:
+    from mjx_emp.run.checkpoint import Checkpoints
+
     agents = [make_agent(dataclasses.replace(exp.config, seed=seed)) for seed in exp.seeds]
     group = SeedGroup(agents[0], tuple(exp.seeds))
     state = group.init()
