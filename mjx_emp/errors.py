@@ -1,7 +1,7 @@
 """Every error type the library raises on purpose, each with a message a user can act on.
 
 The CLI maps them to exit codes (run.directory.main_guarded): bad input and unusable
-checkpoints exit 2, a diverged run 1, no offscreen GL 3, a run stopped by SIGINT or SIGTERM
+checkpoints exit 2, a diverged run or a failed checkpoint write 1, no offscreen GL 3, a run stopped by SIGINT or SIGTERM
 128 + the signal's number (130, 143).
 """
 
@@ -12,6 +12,11 @@ class ConfigError(ValueError):
 
 class CheckpointError(RuntimeError):
     """A checkpoint cannot be used; the message names the file and what is wrong with it."""
+
+
+class CheckpointWriteError(RuntimeError):
+    """A checkpoint could not be written (a full disk, a lost mount); the previous checkpoint is
+    intact and the message names it."""
 
 
 class TrainingDiverged(RuntimeError):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import errno
 import json
 import os
 import signal
@@ -21,7 +22,7 @@ from tiny import SMALL, TINY, mjx_emp, run_cli, tiny_after_two_epochs, tiny_trai
 from mjx_emp import cli
 from mjx_emp.algos.he.agent import Trainer
 from mjx_emp.algos.registry import config_from_json
-from mjx_emp.errors import CheckpointError, TrainingDiverged
+from mjx_emp.errors import CheckpointError, CheckpointWriteError, TrainingDiverged
 from mjx_emp.run.checkpoint import Checkpoints, layout_mismatch, layout_of, pack, unpack
 from mjx_emp.run.directory import keep_metrics_through, train_epochs
 
@@ -365,3 +366,45 @@ def test_a_second_writer_is_refused_naming_the_holder_and_a_killed_holders_lock_
     assert resumed.returncode == 0, resumed.stderr
     assert f"taking over the lock of {run_dir} left by process {process.pid}" in resumed.stdout
     assert (run_dir / ".lock").read_text() == ""  # released when the resume ended
+
+
+def test_a_failed_checkpoint_write_stops_the_run_naming_the_intact_checkpoint(tmp_path):
+    trainer = tiny_trainer()
+    with Checkpoints(tmp_path, keep=3) as checkpoints:
+        checkpoints.save(0, trainer.init(), TINY)
+        checkpoints.wait()
+
+        def full_disk(*args, **kwargs):
+            raise OSError(errno.ENOSPC, "No space left on device")
+
+        checkpoints.manager.save = full_disk  # as orbax reports a full disk
+        with pytest.raises(CheckpointWriteError, match="No space left on device.*newest complete checkpoint is "
+                                                       "epoch 0, left intact"):
+            train_epochs(trainer, trainer.init(), checkpoints, tmp_path, lambda metrics: None)
+        assert checkpoints.epochs() == [0]
+    assert not (tmp_path / "metrics.jsonl").read_text()  # no metrics line for the epoch that was not kept
+
+
+def test_a_run_on_a_full_filesystem_exits_1_and_resumes_once_there_is_room(tmp_path):
+    """A real full disk: a 320 KB tmpfs (needs permission to mount one; skipped otherwise)."""
+    mount = tmp_path / "small"
+    mount.mkdir()
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=320k", "tmpfs", str(mount)], capture_output=True).returncode:
+        pytest.skip("cannot mount a tmpfs here")
+    try:
+        run_dir = mount / "run"
+        args = ["point-mass-k1", "--num-envs", "8", "--hidden", "16", "--batch-size", "16", "--gc-iterations", "2",
+                "--gc-grad-steps", "3", "--replay-capacity", "20000", "--epochs", "6", "--run-dir", str(run_dir)]
+        full = run_cli("train", *args)
+        assert full.returncode == 1, full.stderr
+        kept = sorted(int(p.name) for p in (run_dir / "checkpoints").iterdir() if p.name.isdigit())
+        assert kept and kept[-1] < 6
+        assert (f"checkpoint write failed: writing a checkpoint to {run_dir / 'checkpoints'} failed" in full.stderr
+                and f"the newest complete checkpoint is epoch {kept[-1]}, left intact" in full.stderr), full.stderr
+        subprocess.run(["mount", "-o", "remount,size=4m", str(mount)], check=True)  # space freed
+        resumed = run_cli("train", "--resume", str(run_dir))
+        assert resumed.returncode == 0, resumed.stderr
+        assert f"resuming {run_dir} from epoch {kept[-1]}" in resumed.stdout
+        assert 6 in [int(p.name) for p in (run_dir / "checkpoints").iterdir() if p.name.isdigit()]
+    finally:
+        subprocess.run(["umount", str(mount)], capture_output=True)

@@ -13,11 +13,13 @@ the half-written directory is ignored and cleaned up when the run directory is n
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import logging
 import time
 import zlib
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -29,7 +31,7 @@ import orbax.checkpoint as ocp
 from mjx_emp.algos.he.config import TrainConfig
 from mjx_emp.checks import config_from_dict
 from mjx_emp.counters import digits
-from mjx_emp.errors import CheckpointError
+from mjx_emp.errors import CheckpointError, CheckpointWriteError
 
 CHECKPOINT_SUBDIR = "checkpoints"
 REJECTED_SUBDIR = "rejected-checkpoints"
@@ -252,29 +254,52 @@ class Checkpoints:
             return 0.0
         start = time.perf_counter()
         packed, layout = pack(state), layout_of(state)
-        self.manager.save(epoch, args=ocp.args.Composite(
-            state=ocp.args.StandardSave(packed),
-            layout=ocp.args.JsonSave(layout),
-            config=ocp.args.JsonSave(dataclasses.asdict(config)),
-            digests=ocp.args.JsonSave({"algorithm": "crc32", "arrays": array_digests(packed, layout)}),
-        ))
+        with self._write_errors():
+            self.manager.save(epoch, args=ocp.args.Composite(
+                state=ocp.args.StandardSave(packed),
+                layout=ocp.args.JsonSave(layout),
+                config=ocp.args.JsonSave(dataclasses.asdict(config)),
+                digests=ocp.args.JsonSave({"algorithm": "crc32", "arrays": array_digests(packed, layout)}),
+            ))
         return time.perf_counter() - start
+
+    @contextlib.contextmanager
+    def _write_errors(self) -> Iterator[None]:
+        """A failed write (here or one still running in the background) as a CheckpointWriteError
+        naming the newest complete checkpoint, which it leaves intact."""
+        try:
+            yield
+        except Exception as err:  # OSError, or tensorstore's ValueError (RESOURCE_EXHAUSTED) for a full disk
+            kept = sorted(self.manager.all_steps()) if self.manager else []
+            newest = f"epoch {kept[-1]}" if kept else "none"
+            reason = str(err).split(" [tensorstore_spec=")[0][-300:]
+            raise CheckpointWriteError(
+                f"writing a checkpoint to {self.directory} failed ({type(err).__name__}: {reason}); the newest "
+                f"complete checkpoint is {newest}, left intact: free space, then continue with "
+                f"`--resume {self.run_dir}`"
+            ) from err
 
     def wait(self) -> None:
         """Block until every started save is committed to disk."""
         if self.manager:
-            self.manager.wait_until_finished()
+            with self._write_errors():
+                self.manager.wait_until_finished()
 
     def close(self) -> None:
         """Finish pending writes and release orbax's background threads."""
         if self.manager:
-            self.manager.close()
+            with self._write_errors():
+                self.manager.close()
 
     def __enter__(self) -> Checkpoints:
         return self
 
-    def __exit__(self, *exc_info) -> None:
-        self.close()
+    def __exit__(self, exc_type, *exc_info) -> None:
+        try:
+            self.close()
+        except CheckpointWriteError:
+            if exc_type is None:  # nothing else is being reported: this is the news
+                raise
 
     def read_config(self, epoch: int) -> Any:
         """The config stored with ``epoch``'s checkpoint."""

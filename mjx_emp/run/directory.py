@@ -27,7 +27,14 @@ from mjx_emp.algos.he.config import Phase2Config, check_phase2_config
 from mjx_emp.algos.registry import algorithm_of, config_from_json, config_to_json, make_agent
 from mjx_emp.checks import config_from_dict
 from mjx_emp.commands import Phase2Experiment, ResumeExperiment, TrainExperiment
-from mjx_emp.errors import CheckpointError, ConfigError, Interrupted, RenderError, TrainingDiverged
+from mjx_emp.errors import (
+    CheckpointError,
+    CheckpointWriteError,
+    ConfigError,
+    Interrupted,
+    RenderError,
+    TrainingDiverged,
+)
 
 CONFIG_FILE = "config.json"
 METRICS_FILE = "metrics.jsonl"
@@ -543,6 +550,7 @@ def main_guarded(command: Callable, exp) -> None:
         (ConfigError, "invalid configuration", 2),
         (CheckpointError, "unusable checkpoint", 2),
         (TrainingDiverged, "training diverged", 1),
+        (CheckpointWriteError, "checkpoint write failed", 1),
         (RenderError, "cannot render", 3),
     )
     try:
