@@ -17,7 +17,9 @@ from mjx_emp.algos.he.config import TrainConfig
 from mjx_emp.envs.env import make_env
 from mjx_emp.errors import ConfigError
 from mjx_emp.learners.ddpg import DDPGLearner, GoalTransition, ddpg_losses, relabel_goals, reward_cap
+from mjx_emp.learners.goal_space import GoalSpaceSample
 from mjx_emp.nets import greedy_batch
+from mjx_emp.replay import replay_insert
 from mjx_emp.tracing import traces
 
 
@@ -261,3 +263,55 @@ def test_seeds_under_one_vmap_train_as_separate_runs_do():
         for mine, theirs in zip(jax.tree.leaves(alone.policies), jax.tree.leaves(together.policies)):
             np.testing.assert_allclose(mine, theirs[i], atol=1e-5)
     assert not np.allclose(jax.tree.leaves(together.policies)[0][0], jax.tree.leaves(together.policies)[0][1])
+
+
+def box_after_svg(init_hw: float, reached: bool, steps: int = 300) -> tuple[float, float]:
+    """Level 0's box half-width before and after one goal-space update of ``steps`` SVG steps
+    on 256 samples around its box, whose goals were all reached or all missed (no movement)."""
+    cfg = dataclasses.replace(TINY, init_half_width=(init_hw, 0.6), gs_grad_steps=steps, batch_size=64, gs_replay_capacity=256)
+    t = Trainer(cfg); s = t.init()
+    obs = jnp.asarray(t.initial_obs); start = t.env.goal_of_obs(obs)
+    n = 256; k1, k2 = jax.random.split(jax.random.key(0))
+    mu = t.goal_space_action(0, s.goal_spaces[0].actor, obs)
+    shift, loghw = gce.split_goal_space_action(mu)
+    jitter = jax.random.uniform(k1, (n, 2), minval=-0.4, maxval=0.4)
+    actions = jnp.concatenate([jnp.broadcast_to(shift, (n, 2)), loghw + jitter], -1)
+    noise = gce.goal_noise(k2, (n, 2)); z = jax.vmap(gce.sample_goal)(noise, actions)
+    final = start + z if reached else jnp.broadcast_to(start, (n, 2))
+    reward = jax.vmap(lambda zz, f, a: gce.goal_space_reward(start, zz, f, a, cfg.sigma_gs[0]))(z, final, actions)
+    rows = GoalSpaceSample(obs=jnp.broadcast_to(obs, (n, obs.shape[0])), noise=noise, action=actions, reward=reward)
+    gsr = (replay_insert(s.goal_space_replay[0], rows, jnp.ones(n, bool)),) + s.goal_space_replay[1:]
+    before = float(t.learned_box(0)(s.goal_spaces[0].actor, obs)[1].mean())
+    (pol, gss), losses = t.gs_update(0)((s.policies, s.goal_spaces), s.replay, gsr, jax.random.key(1))
+    after = float(t.learned_box(0)(gss[0].actor, obs)[1].mean())
+    return before, after
+
+
+@pytest.mark.parametrize("init_half_width, reached, grows", [
+    (0.3, True, True),    # every goal reached: only the entropy term varies, so the box grows
+    (1.5, False, False),  # goals missed from a box wider than sigma_gs * sqrt(3/2): the misses cost more
+    (0.3, False, True),   # ... below that width the entropy gain of a bigger box still wins
+])
+def test_the_goal_space_step_grows_a_reached_box_and_shrinks_a_missed_wide_one(init_half_width, reached, grows):
+    before, after = box_after_svg(init_half_width, reached)
+    assert before == pytest.approx(init_half_width, rel=1e-5)
+    assert (after > 1.01 * before) if grows else (after < 0.99 * before), (before, after)
+
+
+def test_reached_is_exactly_a_distance_to_goal_below_eps_at_every_level():
+    from mjx_emp.rollout.hierarchy import jit_init_rollout, jit_rollout
+
+    trainer, _, state, _, _ = tiny_after_two_epochs()
+    plan = trainer.skill_chain(state)
+    rollout = jit_init_rollout(plan.hierarchy, plan.params, plan.start, plan.start_params, jax.random.key(2), 16,
+                               plan.root)
+    _, transitions, _, _ = jit_rollout(plan.hierarchy, plan.params, plan.start, plan.start_params, rollout, 40)
+    outcomes = set()
+    for level in range(trainer.cfg.k):
+        t = jax.tree.map(np.asarray, transitions[level])
+        valid = t.valid.astype(bool)
+        assert valid.any(), f"level {level} stored nothing"
+        distance = np.linalg.norm(np.asarray(trainer.env.goal_of_obs(t.next_obs)) - t.goal, axis=-1)
+        np.testing.assert_array_equal(t.reached[valid], distance[valid] < trainer.cfg.eps[level])
+        outcomes |= set(t.reached[valid].tolist())
+    assert outcomes == {True, False}  # both outcomes occur, so both are checked
