@@ -135,3 +135,15 @@ def test_compiled_programs_are_cached_under_the_users_cache_dir_unless_turned_of
     assert result.returncode == 0, result.stderr
     stored = list((tmp_path / "mjx-emp" / "xla").glob("*")) if (tmp_path / "mjx-emp" / "xla").exists() else []
     assert bool(stored) == cached, stored
+
+
+@pytest.mark.parametrize("args", [
+    ["--replay-capacity", "2000000000"],
+    ["--batch-size", "20000000", "--replay-capacity", "20000000", "--gs-replay-capacity", "20000000"],
+])
+def test_a_run_that_cannot_fit_in_memory_is_refused_before_anything_is_allocated(tmp_path, args):
+    result = cli("train", "point-mass-k1", *args, "--run-dir", str(tmp_path / "run"))
+    assert result.returncode == 2, result.stderr
+    assert "invalid configuration: memory: this run needs about" in result.stderr
+    assert "lower one of replay_capacity, num_envs, batch_size" in result.stderr
+    assert not (tmp_path / "run").exists()  # refused before the run directory was made

@@ -22,7 +22,7 @@ LAYERS = [
     ["mjx_emp.downstream", "mjx_emp.downstream_flat"],
     ["mjx_emp.commands"],
     ["mjx_emp.run.checkpoint", "mjx_emp.run.directory", "mjx_emp.run.evaluate", "mjx_emp.run.seeds",
-     "mjx_emp.run.devices", "mjx_emp.run.hosts"],
+     "mjx_emp.run.devices", "mjx_emp.run.hosts", "mjx_emp.run.preflight"],
     ["mjx_emp.viz.plots", "mjx_emp.viz.render"],
     ["mjx_emp.cli"],
 ]

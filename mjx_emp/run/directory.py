@@ -410,14 +410,23 @@ def train(exp: TrainExperiment):
     algorithm.check(cfg)
     if several and not exp.run_dir:
         raise ConfigError("run_dir: several hosts must be given the same --run-dir (on a shared filesystem)")
+    trainer = training_program(cfg, exp.num_devices)
+    check_memory(trainer)  # before anything is allocated or written
     run_dir = fresh_run_dir(exp.run_dir or default_run_dir(cfg), "run_dir", "a run", "mjx-emp train")
     wait_for_all("mjx-emp: every process checked the run directory")  # before the lead writes into it
     print(f"run directory: {run_dir}", flush=True)
     with run_lock(run_dir, "run_dir"):
-        trainer = training_program(cfg, exp.num_devices)
         if cfg.shards > 1:
             print(f"split into {cfg.shards} shards on {trainer.num_devices} device(s)", flush=True)
         return _train_new(trainer, trainer.init(), run_dir, exp.keep_checkpoints, algorithm.config_type)
+
+
+def check_memory(program) -> None:
+    """The memory preflight (:mod:`mjx_emp.run.preflight`) of what trains a run, before it allocates."""
+    from mjx_emp.run.preflight import preflight
+
+    agent = getattr(program, "alone", program)  # a split run: one shard's agent sees the environment
+    preflight(program, program.cfg, agent.env.obs_size, getattr(program, "num_devices", 1))
 
 
 def _restore(run_dir: Path, trainer, template, fallback: bool = False, epoch: int | None = None):
@@ -545,7 +554,8 @@ def resume_phase2(exp: ResumeExperiment):
 
 
 def main_guarded(command: Callable, exp) -> None:
-    """Run a CLI command; bad input exits 2, divergence 1, no offscreen GL 3, each with a reason."""
+    """Run a CLI command; bad input exits 2, divergence, a failed checkpoint write or running out of
+    memory 1, no offscreen GL 3, SIGINT/SIGTERM 130/143, each with a reason."""
     failures = (
         (ConfigError, "invalid configuration", 2),
         (CheckpointError, "unusable checkpoint", 2),
@@ -553,6 +563,8 @@ def main_guarded(command: Callable, exp) -> None:
         (CheckpointWriteError, "checkpoint write failed", 1),
         (RenderError, "cannot render", 3),
     )
+    from mjx_emp.run.preflight import explain_out_of_memory
+
     try:
         command(exp)
     except Interrupted as stop:
@@ -562,3 +574,9 @@ def main_guarded(command: Callable, exp) -> None:
         what, code = next((what, code) for kind, what, code in failures if isinstance(err, kind))
         print(f"mjx-emp: {what}: {err}", file=sys.stderr)
         sys.exit(code)
+    except Exception as err:  # XLA's out-of-memory error is explained; anything else is a bug to report
+        explanation = explain_out_of_memory(err)
+        if explanation is None:
+            raise
+        print(f"mjx-emp: {explanation}", file=sys.stderr)
+        sys.exit(1)
