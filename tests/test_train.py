@@ -315,3 +315,32 @@ def test_reached_is_exactly_a_distance_to_goal_below_eps_at_every_level():
         np.testing.assert_array_equal(t.reached[valid], distance[valid] < trainer.cfg.eps[level])
         outcomes |= set(t.reached[valid].tolist())
     assert outcomes == {True, False}  # both outcomes occur, so both are checked
+
+
+def test_gc_critic_target_bootstraps_from_the_target_networks_at_the_next_state():
+    """obs != next_obs and target networks != online ones, so a swap of either would show."""
+    trainer = tiny_trainer()
+    learner = trainer.init().policies[0]
+    learner = learner.replace(target_actor=jax.tree.map(lambda x: x + 0.5, learner.target_actor),
+                              target_critic=jax.tree.map(lambda x: x - 1.0, learner.target_critic))  # below the cap
+    keys = jax.random.split(jax.random.key(4), 3)
+    obs = 3.0 * jax.random.normal(keys[0], (6, trainer.env.obs_size))
+    next_obs = 3.0 * jax.random.normal(keys[1], (6, trainer.env.obs_size))
+    goal = trainer.env.goal_of_obs(next_obs) + 0.1 * jax.random.normal(keys[2], (6, 2))  # small rewards
+    batch = GoalTransition(obs=obs, goal=goal, action=jnp.full((6, 2), 0.1),
+                           next_obs=next_obs, reached=jnp.array([True, False, False, True, False, False]))
+    critic_loss, _ = trainer.gc_losses(0, learner, None, batch)
+    cap = reward_cap(2, TINY.sigma_gc[0], TINY.gamma)
+
+    def loss_with(actor, critic, at):
+        reward = gce.goal_conditioned_reward(batch.goal, trainer.env.goal_of_obs(next_obs), TINY.sigma_gc[0])
+        act = greedy_batch(trainer.hierarchy.policies[0], actor, None)(at, batch.goal)
+        bootstrap = jnp.minimum(trainer.q_value(critic, at, batch.goal, act), cap)
+        target = reward + jnp.where(batch.reached, 0.0, TINY.gamma) * bootstrap
+        return float(jnp.mean(jnp.square(trainer.q_value(learner.critic, obs, batch.goal, batch.action) - target)))
+
+    actual = float(critic_loss(learner.critic))
+    assert actual == pytest.approx(loss_with(learner.target_actor, learner.target_critic, next_obs), rel=1e-5)
+    for wrong in (loss_with(learner.actor, learner.critic, next_obs),  # online networks
+                  loss_with(learner.target_actor, learner.target_critic, obs)):  # the state before the step
+        assert abs(wrong - actual) > 1e-3 * abs(actual), (wrong, actual)  # 100x the tolerance above
