@@ -147,3 +147,15 @@ def test_a_run_that_cannot_fit_in_memory_is_refused_before_anything_is_allocated
     assert "invalid configuration: memory: this run needs about" in result.stderr
     assert "lower one of replay_capacity, num_envs, batch_size" in result.stderr
     assert not (tmp_path / "run").exists()  # refused before the run directory was made
+
+
+def test_a_diverging_run_exits_1_through_the_cli_keeping_the_last_good_checkpoint(tmp_path):
+    run_dir = tmp_path / "run"
+    result = cli("train", "point-mass-k1", "--num-envs", "8", "--hidden", "16", "--batch-size", "16",
+                 "--gc-iterations", "2", "--gc-grad-steps", "3", "--replay-capacity", "2048",
+                 "--sigma-gc", "1e-30", "--epochs", "3", "--run-dir", str(run_dir))  # rewards overflow to -inf
+    assert result.returncode == 1, result.stderr
+    assert ("training diverged: epoch 1: level 0 goal-conditioned critic loss is nan. Stopped without saving this "
+            f"epoch; the last good checkpoint is epoch 0 in {run_dir / 'checkpoints'}") in result.stderr
+    assert sorted(p.name for p in (run_dir / "checkpoints").iterdir()) == ["0"]
+    assert (run_dir / "metrics.jsonl").read_text() == ""
