@@ -408,3 +408,24 @@ def test_a_run_on_a_full_filesystem_exits_1_and_resumes_once_there_is_room(tmp_p
         assert 6 in [int(p.name) for p in (run_dir / "checkpoints").iterdir() if p.name.isdigit()]
     finally:
         subprocess.run(["umount", str(mount)], capture_output=True)
+
+
+def test_a_planted_half_written_checkpoint_is_ignored_and_cleaned_up(saved_run, tmp_path):
+    """What a kill in the middle of orbax's write leaves (a temporary directory with part of the
+    files), planted deterministically: the previous checkpoint is the newest, and reopening
+    the directory removes the leftover."""
+    run_dir, states = saved_run
+    copy = tmp_path / "run"
+    subprocess.run(["cp", "-r", str(run_dir), str(copy)], check=True)
+    partial = copy / "checkpoints" / "3.orbax-checkpoint-tmp-1234567890"
+    subprocess.run(["cp", "-r", str(copy / "checkpoints" / "2"), str(partial)], check=True)
+    for name in ("commit_success.txt", "_CHECKPOINT_METADATA"):
+        (partial / name).unlink(missing_ok=True)
+    data = max((p for p in (partial / "state").rglob("*") if p.is_file()), key=lambda p: p.stat().st_size)
+    os.truncate(data, data.stat().st_size // 3)
+    with Checkpoints(copy) as checkpoints:
+        assert checkpoints.epochs() == [1, 2]
+        epoch, restored = checkpoints.restore_latest(states[2], TINY)
+        assert epoch == 2
+        assert_bitwise_equal(restored, states[2])
+    assert not partial.exists()
