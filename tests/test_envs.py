@@ -190,3 +190,20 @@ def test_heading_frame_inputs_do_not_change_when_the_world_turns_and_world_input
 def test_heading_frame_needs_a_free_torso():
     with pytest.raises(ValueError, match="heading_frame: 'half_cheetah_field' has no free torso"):
         make_env("half_cheetah_field", heading_frame=True)
+
+
+@pytest.mark.parametrize("name", ["ant_cage", "half_cheetah_cage"])
+def test_the_cage_latch_ignores_presses_outside_the_button_and_stays_open_once_opened(name):
+    env = make_env(name)
+    step = jax.jit(env.step)
+    center, half = np.asarray(env.cage.button_center), np.asarray(env.cage.button_half_size)
+    outside = env.reset_to(jax.random.key(0), jnp.asarray(center - half - 0.3))  # just short of every edge
+    assert not bool(env.cage_open(step(outside, jnp.zeros(env.action_size))))
+    opened = step(env.reset_to(jax.random.key(0), jnp.asarray(center)), jnp.zeros(env.action_size))
+    assert bool(env.cage_open(opened))
+    # carried far from the button (the latch is all that remembers the press), it stays open
+    far = opened.data.qpos.at[jnp.asarray(env.goal_qpos)].set(jnp.asarray(center + 10 * half + 5.0))
+    moved = opened.replace(data=opened.data.replace(qpos=far))
+    for _ in range(3):
+        moved = step(moved, jnp.zeros(env.action_size))
+    assert bool(env.cage_open(moved)) and float(env.observe(moved)[-1]) == 1.0
