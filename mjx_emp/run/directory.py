@@ -482,7 +482,8 @@ def _resume(exp: ResumeExperiment, load: Callable):
     """Continue a run directory from its newest good checkpoint (``load`` restores it)."""
     _check_keep(exp.keep_checkpoints)
     run_dir = Path(exp.resume)
-    read_run_config(run_dir, "resume")  # a directory that is no run is refused before anything is written
+    if not (run_dir / CONFIG_FILE).exists():  # a directory that is no run is refused before anything is written
+        raise ConfigError(f"resume: {str(run_dir)!r} has no {CONFIG_FILE}; is it a run directory?")
     with run_lock(run_dir, "resume"):
         trainer, epoch, state = load(run_dir, exp.fallback, exp.epochs, field="resume")
         from mjx_emp.run.checkpoint import Checkpoints
