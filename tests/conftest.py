@@ -1,4 +1,4 @@
-"""Test-session set-up: one persistent XLA compilation cache for this process and its children.
+"""Test-session set-up: one persistent XLA compilation cache shared by the CLI subprocesses.
 
 Identical programs compiled by several CLI subprocesses then compile once per session;
 what they compute is unchanged. The cache lives in a temporary
