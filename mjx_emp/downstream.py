@@ -136,7 +136,7 @@ class Phase2Loop:
         row = GoalTransition(obs, goal, action, obs, jnp.zeros((), bool))
         return learner, replay_init(row, self.cfg.replay_capacity)
 
-    def _update(self, state: Any, key: jax.Array) -> tuple[Any, jax.Array]:
+    def update(self, state: Any, key: jax.Array) -> tuple[Any, jax.Array]:
         """``grad_steps`` DDPG steps on replayed attempts (phase 1's learner, one level up)."""
         cfg = self.cfg
         actor_tx, critic_tx = self.optimizers
@@ -159,7 +159,7 @@ class Phase2Loop:
             noise = jnp.where(train, cfg.action_noise, 0.0)
             state, totals = self._collect(state.replace(key=key), noise, train, collect_key)
             state, losses = jax.lax.cond(
-                train, self._update, lambda s, _: (s, jnp.full(2, jnp.nan)), state, update_key
+                train, self.update, lambda s, _: (s, jnp.full(2, jnp.nan)), state, update_key
             )
             stats = Phase2Stats(
                 train=train, env_steps=totals.env_steps, transitions=totals.transitions,

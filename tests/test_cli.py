@@ -15,35 +15,49 @@ def cli(*args: str) -> subprocess.CompletedProcess:
 
 
 @pytest.mark.parametrize(
-    "args, field",
+    "args, message",
     [
-        (["rollout", "--env", "pointmass"], "point_mass"),  # tyro lists the allowed choices
-        (["rollout", "--n", "20", "10", "--eps", "0.5"], "eps"),
-        (["rollout", "--n", "0"], "n"),
-        (["rollout", "--n", "20", "--eps", "-1"], "eps"),
+        # tyro's own errors (in a box): the flag and the allowed choices
+        (["rollout", "--env", "pointmass"], "invalid choice 'pointmass' for argument '--env'. Expected one of"),
+        (["train", "--resume", "/nonexistent/mjx-emp-run", "--seed", "3"], "Unrecognized options: --seed, 3"),
+        # ours: the field, the rule and the value given
+        (["rollout", "--n", "20", "10", "--eps", "0.5"],
+         "invalid configuration: n and eps: need one entry per level (k=2); got n=(20, 10), eps=(0.5,)"),
+        (["rollout", "--n", "0", "--eps", "0.5"], "invalid configuration: n: every entry must be an integer >= 1; got (0,)"),
+        (["rollout", "--n", "20", "--eps", "-1"], "invalid configuration: eps: every entry must be > 0; got (-1.0,)"),
         (["rollout", "--n", "20", "10", "10", "--eps", "1", "1", "1", "--subgoal-half-width", "2"],
-         "subgoal_half_width"),
-        (["rollout", "--batch-size", "0"], "batch_size"),
-        (["train", "point-mass-k1", "--sigma-gc", "0.4", "0.8"], "sigma_gc"),
-        (["train", "point-mass-k2", "--n", "10"], "eps"),
-        (["train", "point-mass-k1", "--eps", "0"], "eps"),
-        (["train", "point-mass-k1", "--sigma-gs", "-1"], "sigma_gs"),
-        (["train", "point-mass-k1", "--env", "maze"], "env"),
-        (["train", "point-mass-k1", "--run-dir", "/proc/mjx-emp-cannot-write"], "run_dir"),
-        (["train", "point-mass-k1", "--n"], "n"),
-        (["train", "point-mass-k1", "--keep-checkpoints", "0"], "keep_checkpoints"),
-        (["train", "--resume", "/nonexistent/mjx-emp-run"], "resume"),
-        (["train", "--resume", "/nonexistent/mjx-emp-run", "--seed", "3"], "--seed"),  # not resumable
-        (["render", "/nonexistent/mjx-emp-run", "--steps", "0"], "steps"),
-        (["render", "/nonexistent/mjx-emp-run"], "run_dir"),  # not a run directory
-        (["eval", "/nonexistent/mjx-emp-run", "--episodes", "0"], "episodes"),
-        (["eval", "/nonexistent/mjx-emp-run"], "run_dir"),
+         "invalid configuration: subgoal_half_width: needs k-1=2 positive entries; got (2.0,)"),
+        (["rollout", "--batch-size", "0"], "invalid configuration: batch_size: must be >= 1; got 0"),
+        (["train", "point-mass-k1", "--sigma-gc", "0.4", "0.8"],
+         "invalid configuration: sigma_gc: need one entry per level (k=1 from n); got (0.4, 0.8)"),
+        (["train", "point-mass-k2", "--n", "10"],
+         "invalid configuration: n and eps: need one entry per level (k=1); got n=(10,), eps=(0.3, 0.6)"),
+        (["train", "point-mass-k1", "--eps", "0"], "invalid configuration: eps: every entry must be > 0; got (0.0,)"),
+        (["train", "point-mass-k1", "--sigma-gs", "-1"],
+         "invalid configuration: sigma_gs: every entry must be > 0; got (-1.0,)"),
+        (["train", "point-mass-k1", "--env", "maze"],
+         "invalid configuration: env: 'maze' is unknown; allowed values: ['ant_cage', 'ant_field', "
+         "'half_cheetah_cage', 'half_cheetah_field', 'point_mass']"),
+        (["train", "point-mass-k1", "--run-dir", "/proc/mjx-emp-cannot-write"],
+         "invalid configuration: run_dir: cannot write to '/proc/mjx-emp-cannot-write'"),
+        (["train", "point-mass-k1", "--n"], "invalid configuration: n: give at least one level (k >= 1), e.g. --n 20 10"),
+        (["train", "point-mass-k1", "--keep-checkpoints", "0"],
+         "invalid configuration: keep_checkpoints: must be >= 1; got 0"),
+        (["train", "--resume", "/nonexistent/mjx-emp-run"],
+         "invalid configuration: resume: '/nonexistent/mjx-emp-run' has no config.json; is it a run directory?"),
+        (["render", "/nonexistent/mjx-emp-run", "--steps", "0"], "invalid configuration: steps: must be >= 1; got 0"),
+        (["render", "/nonexistent/mjx-emp-run"],
+         "invalid configuration: run_dir: '/nonexistent/mjx-emp-run' has no config.json; is it a run directory?"),
+        (["eval", "/nonexistent/mjx-emp-run", "--episodes", "0"],
+         "invalid configuration: episodes: must be >= 1; got 0"),
+        (["eval", "/nonexistent/mjx-emp-run"],
+         "invalid configuration: run_dirs: '/nonexistent/mjx-emp-run' has no config.json; is it a run directory?"),
     ],
 )
-def test_bad_config_exits_2_naming_the_field(args, field):
+def test_bad_config_exits_2_naming_the_field_and_the_rule(args, message):
     result = cli(*args)
     assert result.returncode == 2, result.stderr
-    assert field in result.stderr
+    assert message in result.stderr, result.stderr
 
 
 @pytest.mark.parametrize(
@@ -81,7 +95,8 @@ def test_help_explains_fields():
 def test_train_refuses_a_run_dir_that_holds_a_run(tmp_path):
     (tmp_path / "metrics.jsonl").write_text("")
     result = cli("train", "point-mass-k1", "--run-dir", str(tmp_path))
-    assert result.returncode == 2 and "run_dir" in result.stderr and "--resume" in result.stderr
+    assert result.returncode == 2
+    assert f"run_dir: '{tmp_path}' already holds a run; continue it with `mjx-emp train --resume {tmp_path}`" in result.stderr
 
 
 def test_rollout_main_job_reports_statistics():

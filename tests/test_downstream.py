@@ -146,3 +146,45 @@ def test_every_table_2_preset_builds_on_a_phase_1_preset_of_the_same_domain():
         assert phase2_preset_for(baselines[f"{algo}-half-cheetah-small"][1]) == "half-cheetah-small-k1"
     cheetah = PHASE2_PRESETS["half-cheetah-big-k2"][2]
     assert cheetah.region == (450.0,) and cheetah.region_offset[0] > 0  # lies ahead of the start
+
+
+@pytest.mark.parametrize("reached", [False, True])
+def test_phase_2_critic_learns_its_own_reward_sigma_and_discount(tiny_phase2, reached):
+    """The phase-2 critic's loss is (Q - target)^2 with target = log N(goal; h(s'), sigma) +
+    gamma * Q_target(s', pi_target(s')) for phase 2's own sigma and gamma (not phase 1's),
+    the bootstrap dropped where the goal was reached."""
+    from mjx_emp import gce
+    from mjx_emp.learners.ddpg import GoalTransition, reward_cap
+    from mjx_emp.replay import replay_insert
+
+    base, skills_state, _ = tiny_phase2
+    cfg = dataclasses.replace(TINY_PHASE2, sigma=1.3, gamma=0.7, grad_steps=1)
+    assert (cfg.sigma, cfg.gamma) != (TINY.sigma_gc[-1], TINY.gamma)
+    trainer = Phase2Trainer(base.phase1, cfg)
+    state = trainer.init(skills_state)
+    learner = state.learner.replace(target_critic=jax.tree.map(lambda x: x - 1.0, state.learner.target_critic),
+                                    target_actor=jax.tree.map(lambda x: x + 0.3, state.learner.target_actor))
+    obs = jnp.asarray(trainer.phase1.initial_obs)
+    next_obs = obs.at[:2].add(jnp.array([0.4, -0.2]))
+    goal = trainer.env.goal_of_obs(obs) + jnp.array([1.0, 0.5])
+    row = GoalTransition(obs, goal, jnp.array([0.2, -0.1]), next_obs, jnp.asarray(reached))
+    rows = jax.tree.map(lambda x: jnp.broadcast_to(x, (cfg.batch_size,) + x.shape), row)
+    replay = replay_insert(state.replay, rows, jnp.ones(cfg.batch_size, bool))
+    _, losses = trainer.update(state.replace(learner=learner, replay=replay), jax.random.key(1))
+
+    def expected(sigma: float, gamma: float) -> float:
+        reward = gce.goal_conditioned_reward(goal[None], trainer.env.goal_of_obs(next_obs)[None], sigma)
+        next_action = trainer.greedy_actions(state)(learner.target_actor, next_obs[None], goal[None])
+        bootstrap = jnp.minimum(trainer.q_value(learner.target_critic, next_obs[None], goal[None], next_action),
+                                reward_cap(trainer.env.goal_size, sigma, gamma))
+        target = reward + (0.0 if reached else gamma) * bootstrap
+        q = trainer.q_value(learner.critic, obs[None], goal[None], row.action[None])
+        return float(jnp.mean(jnp.square(q - target)))
+
+    actual = float(losses[0])
+    assert actual == pytest.approx(expected(cfg.sigma, cfg.gamma), rel=1e-5)
+    wrong = [expected(TINY.sigma_gc[-1], cfg.gamma)]  # phase 1's top-level sigma
+    if not reached:
+        wrong.append(expected(cfg.sigma, TINY.gamma))  # phase 1's discount
+    for value in wrong:
+        assert abs(value - actual) > 1e-3 * abs(actual), (value, actual)

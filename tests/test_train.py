@@ -344,3 +344,36 @@ def test_gc_critic_target_bootstraps_from_the_target_networks_at_the_next_state(
     for wrong in (loss_with(learner.actor, learner.critic, next_obs),  # online networks
                   loss_with(learner.target_actor, learner.target_critic, obs)):  # the state before the step
         assert abs(wrong - actual) > 1e-3 * abs(actual), (wrong, actual)  # 100x the tolerance above
+
+
+def test_start_buffers_begin_with_the_initial_state_and_stay_within_the_chains_reach():
+    trainer = tiny_trainer()
+    env, cfg = trainer.env, trainer.cfg
+    home = np.asarray(env.goal_of_obs(jnp.asarray(trainer.initial_obs)))
+
+    def reach(actions: int) -> float:
+        """How far full thrust along x carries the point mass in ``actions`` actions from the
+        initial state (the fastest way along one axis)."""
+        pushed, step = env.restore(jax.random.key(0), jnp.asarray(trainer.initial_obs)), jax.jit(env.step)
+        for _ in range(actions):
+            pushed = step(pushed, jnp.array([1.0, 0.0]))
+        return float(np.abs(np.asarray(env.goal_of(pushed)) - home)[0])
+
+    state = trainer.init()
+    for epoch in (1, 2):
+        state, _ = trainer.train_epoch(state)
+        # The chain has taken at most this many actions from the initial state: per epoch,
+        # start_chain rollout calls of chunk_steps actions each.
+        bound = math.sqrt(2) * reach(epoch * cfg.start_chain * cfg.chunk_steps) * 1.05
+        for level in range(cfg.k):
+            buffer = state.starts[level]
+            size = int(buffer.size)
+            rows = np.asarray(buffer.data[:size])
+            if epoch == 1:  # before the ring wraps, row 0 is the initial state written at init
+                assert 1 < size < buffer.capacity, (level, size)
+                np.testing.assert_array_equal(rows[0], np.asarray(trainer.initial_obs))
+                assert np.all(np.asarray(buffer.data[size:]) == 0), "rows past size stay empty"
+            distance = np.linalg.norm(np.asarray(env.goal_of_obs(jnp.asarray(rows))) - home, axis=-1)
+            assert np.all(distance <= bound), (epoch, level, distance.max(), bound)
+            assert distance.max() > 1e-3, "rows are states the chain reached, not copies of the start"
+    assert reach(1) > 1e-3, "the probe push moves the point mass"
