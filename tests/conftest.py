@@ -46,7 +46,8 @@ def release_compiled_programs():
     compiled for as long as the process lives. Over the whole suite one pytest process
     reached Linux's limit (vm.max_map_count, 65530) in test_skills and died with SIGSEGV
     inside XLA's compiler (measured: 64155 mappings at the 190th test). Clearing after every
-    test instead made the suite recompile so much that it took 23 minutes instead of about 14.
+    test instead made the suite recompile so much that it took 23.5 minutes instead of 18
+    (one process, clean-clone runs).
     """
     yield
     if memory_mappings() > MAPPINGS_BEFORE_CLEARING:
