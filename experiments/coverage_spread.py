@@ -1,0 +1,70 @@
+"""How much METRA's coverage figure moves with the draw of its 48 skills, for runs already trained.
+
+The coverage count (1 m cells visited by 48 greedy skills from the initial state) samples its
+skills from the agent's skill space (HE and GCRL: the top goal space; the flat learners:
+their prior), so one run gives different counts for different draws. For every row of
+``--rows`` (the comparison's JSON, filtered by ``--env``) this reloads the run's newest
+checkpoint and counts coverage for ``--draws`` independent draws, writing one row per run
+(``preset``, ``seed``, ``cells`` per draw, their mean and sample std) to ``--out``.
+``python experiments/coverage_spread.py --env ant_field --draws 8``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import jax
+import numpy as np
+import tyro
+
+from mjx_emp.metrics import coverage_cells
+from mjx_emp.run import directory as run
+from mjx_emp.run.evaluate import COVERAGE_SKILLS
+
+
+@dataclasses.dataclass
+class Args:
+    """Runs listed in a comparison's JSON, recounted over several skill draws."""
+
+    rows: str = "benchmarks/results/baselines_cpu.json"
+    env: str = "ant_field"
+    """Only the rows of this environment."""
+    draws: int = 8
+    """Independent draws of the coverage skills per run."""
+    out: str = "benchmarks/results/coverage_spread_cpu.json"
+
+
+def coverage_over_draws(run_dir: Path, seed: int, draws: int) -> list[int]:
+    """Coverage cells of RUN_DIR's newest checkpoint for ``draws`` independent draws of
+    :data:`COVERAGE_SKILLS` skills (keys fixed by seed, so a rerun gives the same counts)."""
+    agent, _, state = run.load_run(run_dir)
+    return [coverage_cells(*agent.skill_paths(state, jax.random.key(5000 + 100 * seed + draw), COVERAGE_SKILLS))
+            for draw in range(draws)]
+
+
+def main(args: Args) -> None:
+    rows = [r for r in json.loads(Path(args.rows).read_text())["rows"] if r["env"] == args.env]
+    if not rows:
+        raise SystemExit(f"--env: no rows of {args.env!r} in {args.rows}")
+    out_rows = []
+    for row in rows:
+        cells = coverage_over_draws(Path(row["run_dir"]), row["seed"], args.draws)
+        out_rows.append({"preset": row["preset"], "seed": row["seed"], "run_dir": row["run_dir"], "cells": cells,
+                         "mean": float(np.mean(cells)), "std": float(np.std(cells, ddof=1))})
+        print(json.dumps(out_rows[-1]), flush=True)
+    Path(args.out).write_text(json.dumps({"backend": jax.default_backend(), "env": args.env, "draws": args.draws,
+                                          "skills_per_draw": COVERAGE_SKILLS, "rows": out_rows}, indent=1))
+    print("| preset | runs | coverage cells, mean of draws (mean ± std over runs) | std over draws within a run (mean) |")
+    print("|---|---|---|---|")
+    for preset in dict.fromkeys(r["preset"] for r in out_rows):
+        mine = [r for r in out_rows if r["preset"] == preset]
+        means = [r["mean"] for r in mine]
+        print(f"| {preset} | {len(mine)} | {np.mean(means):.3g} ± {np.std(means, ddof=1) if len(means) > 1 else 0:.2g} "
+              f"| {np.mean([r['std'] for r in mine]):.2g} |")
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main(tyro.cli(Args))
