@@ -16,10 +16,9 @@ import json
 from pathlib import Path
 
 import jax
-import numpy as np
 import tyro
 
-from mjx_emp.metrics import coverage_cells
+from mjx_emp.metrics import coverage_cells, mean_and_stderr
 from mjx_emp.run import directory as run
 from mjx_emp.run.evaluate import COVERAGE_SKILLS
 
@@ -51,8 +50,9 @@ def main(args: Args) -> None:
     out_rows = []
     for row in rows:
         cells = coverage_over_draws(Path(row["run_dir"]), row["seed"], args.draws)
+        spread = mean_and_stderr(cells)
         out_rows.append({"preset": row["preset"], "seed": row["seed"], "run_dir": row["run_dir"], "cells": cells,
-                         "mean": float(np.mean(cells)), "std": float(np.std(cells, ddof=1))})
+                         "mean": spread["mean"], "std": spread["std"]})
         print(json.dumps(out_rows[-1]), flush=True)
     Path(args.out).write_text(json.dumps({"backend": jax.default_backend(), "env": args.env, "draws": args.draws,
                                           "skills_per_draw": COVERAGE_SKILLS, "rows": out_rows}, indent=1))
@@ -60,9 +60,9 @@ def main(args: Args) -> None:
     print("|---|---|---|---|")
     for preset in dict.fromkeys(r["preset"] for r in out_rows):
         mine = [r for r in out_rows if r["preset"] == preset]
-        means = [r["mean"] for r in mine]
-        print(f"| {preset} | {len(mine)} | {np.mean(means):.3g} ± {np.std(means, ddof=1) if len(means) > 1 else 0:.2g} "
-              f"| {np.mean([r['std'] for r in mine]):.2g} |")
+        over_runs = mean_and_stderr([r["mean"] for r in mine])
+        print(f"| {preset} | {len(mine)} | {over_runs['mean']:.3g} ± {over_runs['std']:.2g} "
+              f"| {mean_and_stderr([r['std'] for r in mine])['mean']:.2g} |")
     print(f"wrote {args.out}")
 
 
