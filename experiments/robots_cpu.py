@@ -21,7 +21,7 @@ from pathlib import Path
 
 import jax
 import tyro
-from baselines import train_or_resume
+from baselines import merge_row, train_or_resume
 
 from mjx_emp.run import directory as run
 from mjx_emp.run.evaluate import phase1_figures, phase2_figures
@@ -89,10 +89,8 @@ def main(args: Args) -> None:
             else:
                 run_dir = Path(args.base) / f"{preset}-s{seed}"
             row = evaluate_run(run_dir, preset, seed, args.episodes, args.at_epoch)
-            rows = [r for r in rows if (r["preset"], r["seed"]) != (preset, seed)] + [row]
             print(json.dumps({k: v for k, v in row.items() if k not in ("levels", "curve")}), flush=True)
-            out.parent.mkdir(parents=True, exist_ok=True)
-            out.write_text(json.dumps({"backend": jax.default_backend(), "rows": rows}, indent=1))
+            rows = merge_row(out, row)  # re-reads OUT: a run beside this one may have written rows meanwhile
     print("| preset | seed | env steps | wall s | top area | success | coverage cells |")
     print("|---|---|---|---|---|---|---|")
     for r in rows:
