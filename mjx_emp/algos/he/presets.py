@@ -105,13 +105,20 @@ HALF_CHEETAH_CPU_K1 = dataclasses.replace(
 
 # Two levels: level 0 as above; level 1 gets n = 5 subgoals (the paper's Ant Field Big
 # uses 10) to keep a CPU epoch affordable (each level-1 iteration runs until all 16
-# environments finished an episode of up to 100 actions), and twice level 0's widths,
-# as the paper's Ant rows double sigma and eps per level. 300 epochs: a k=2 epoch
-# simulates several times a k=1 epoch's steps.
-ANT_FIELD_CPU_K2 = dataclasses.replace(
+# environments finished an episode of up to 100 actions), and twice level 0's sigma_gc and
+# eps, as the paper's Ant rows double them per level. 300 epochs: a k=2 epoch simulates
+# several times a k=1 epoch's steps.
+# ``ant-field-cpu-k2-wide`` also doubles sigma_gs (1.0 at level 1), which settles the top
+# box about 1.4 m beyond level 1's reach: on seeds 0 and 1 it grew to 37 and 56 m^2 by epoch
+# 300 while greedy success fell to 0.60 and 0.45 (at k=1's 2.0 M steps: 28.5 and 34.5 m^2
+# at 0.69 and 0.51). ``ant-field-cpu-k2`` keeps level 1's sigma_gs at 0.5: on seed 0 the top
+# box settled at 12-17 m^2 from epoch 60 on with per-epoch success 0.6-1.0 (at 2.0 M steps
+# 14.1 m^2 at 0.88, mean of 11 epochs); 100 epochs (about 2.9 M steps) cover k=1's budget.
+ANT_FIELD_CPU_K2_WIDE = dataclasses.replace(
     ANT_FIELD_CPU_K1, n=(20, 5), sigma_gc=(1.0, 2.0), sigma_gs=(0.5, 1.0), eps=(0.6, 1.2),
     init_half_width=(0.3, 0.6), max_half_width=(10.0, 50.0), epochs=300,
 )
+ANT_FIELD_CPU_K2 = dataclasses.replace(ANT_FIELD_CPU_K2_WIDE, sigma_gs=(0.5, 0.5), epochs=100)
 HALF_CHEETAH_CPU_K2 = dataclasses.replace(
     HALF_CHEETAH_CPU_K1, n=(20, 5), sigma_gc=(1.0, 2.0), sigma_gs=(0.5, 1.0), eps=(1.0, 2.0),
     init_half_width=(0.5, 1.0), max_half_width=(20.0, 100.0), epochs=300,
@@ -123,6 +130,8 @@ PRESETS: dict[str, tuple[str, TrainConfig]] = {
     "ant-field-cpu-k1": ("CPU: the paper's Ant, one level of n=20 skills", ANT_FIELD_CPU_K1),
     "half-cheetah-cpu-k1": ("CPU: the paper's Half Cheetah, one level of n=20 skills", HALF_CHEETAH_CPU_K1),
     "ant-field-cpu-k2": ("CPU: the paper's Ant, two levels n=(20, 5)", ANT_FIELD_CPU_K2),
+    "ant-field-cpu-k2-wide": ("CPU: ant-field-cpu-k2 with level 1's sigma_gs doubled: larger boxes, "
+                              "lower success", ANT_FIELD_CPU_K2_WIDE),
     "half-cheetah-cpu-k2": ("CPU: the paper's Half Cheetah, two levels n=(20, 5)", HALF_CHEETAH_CPU_K2),
     "ant-field-small-k1": ("Table 1: Ant Field Small, k=1",
                            _paper("ant_field", (20,), (0.4,), (1.75,), (0.6,), 1220, (10.0,))),
@@ -219,6 +228,8 @@ PHASE2_PRESETS: dict[str, tuple[str, str, Phase2Config]] = {
                          "ant-field-cpu-k1", _ANT_SMALL_TASK),
     "ant-field-cpu-k2": ("CPU: Table 2's Ant Field Small task for the two-level agent", "ant-field-cpu-k2",
                          _ANT_SMALL_TASK),
+    "ant-field-cpu-k2-wide": ("CPU: Table 2's Ant Field Small task for ant-field-cpu-k2-wide",
+                              "ant-field-cpu-k2-wide", _ANT_SMALL_TASK),
     "half-cheetah-cpu-k1": ("CPU: Table 2's Half Cheetah Small task (95 m, 10 attempts, eps 3.0)",
                             "half-cheetah-cpu-k1", _CHEETAH_SMALL_TASK),
     "half-cheetah-cpu-k2": ("CPU: Table 2's Half Cheetah Small task for the two-level agent",
