@@ -14,7 +14,7 @@ reads each curve at a step budget and writes one row per run plus a summary per 
 - a k=1 run is read the same way at its own last epoch, so both sides use one estimator.
 
 Extra run directories (tuning runs not in the JSON) can be read with ``--extra
-LABEL=RUN_DIR``; their curve comes from the run's ``metrics.jsonl``.
+LABEL=RUN_DIR``; their curve comes from the run's ``metrics.jsonl`` and is written beside the figures.
 ``python experiments/equal_steps.py``.
 """
 
@@ -84,7 +84,7 @@ def equal_steps(rows: list[dict], window: int, extra: dict[str, list[list[float]
         budget = sum(r["env_steps"] for r in ones) / len(ones)
         k1 = [{"seed": r["seed"], **read_curve_at(r["curve"], r["env_steps"], window)} for r in ones]
         k2 = [{"seed": r["seed"], **read_curve_at(r["curve"], budget, window)} for r in twos]
-        others = {label: read_curve_at(curve, budget, window)
+        others = {label: {**read_curve_at(curve, budget, window), "curve": curve}
                   for label, curve in extra.items() if label.startswith(robot)}
         k1_sum, k2_sum = summarise(k1), summarise(k2)
         larger = k2_sum["top_volume"]["mean"] > k1_sum["top_volume"]["mean"]
