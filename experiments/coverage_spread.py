@@ -6,7 +6,8 @@ their prior), so one run gives different counts for different draws. For every r
 ``--rows`` (the comparison's JSON, filtered by ``--env``) this reloads the run's newest
 checkpoint and counts coverage for ``--draws`` independent draws, writing one row per run
 (``preset``, ``seed``, ``cells`` per draw, their mean and sample std) to ``--out``.
-``python experiments/coverage_spread.py --env ant_field --draws 8``.
+``python experiments/coverage_spread.py --env ant_field --draws 8``; for the robots' runs
+``--rows benchmarks/results/robots_cpu.json --presets ant-field-cpu-k2 --out ...``.
 """
 
 from __future__ import annotations
@@ -29,7 +30,10 @@ class Args:
 
     rows: str = "benchmarks/results/baselines_cpu.json"
     env: str = "ant_field"
-    """Only the rows of this environment."""
+    """Only the rows of this environment (rows that name one: the comparison's JSON)."""
+    presets: tuple[str, ...] = ()
+    """Only the rows of these presets instead (for JSON whose rows name no environment,
+    such as ``robots_cpu.json``)."""
     draws: int = 8
     """Independent draws of the coverage skills per run."""
     out: str = "benchmarks/results/coverage_spread_cpu.json"
@@ -44,9 +48,15 @@ def coverage_over_draws(run_dir: Path, seed: int, draws: int) -> list[int]:
 
 
 def main(args: Args) -> None:
-    rows = [r for r in json.loads(Path(args.rows).read_text())["rows"] if r["env"] == args.env]
-    if not rows:
-        raise SystemExit(f"--env: no rows of {args.env!r} in {args.rows}")
+    rows = json.loads(Path(args.rows).read_text())["rows"]
+    if args.presets:
+        rows = [r for r in rows if r["preset"] in args.presets]
+        if not rows:
+            raise SystemExit(f"--presets: no rows of {list(args.presets)} in {args.rows}")
+    else:
+        rows = [r for r in rows if r.get("env") == args.env]
+        if not rows:
+            raise SystemExit(f"--env: no rows of {args.env!r} in {args.rows}")
     out_rows = []
     for row in rows:
         cells = coverage_over_draws(Path(row["run_dir"]), row["seed"], args.draws)
