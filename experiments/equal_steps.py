@@ -25,9 +25,10 @@ import json
 from pathlib import Path
 
 import tyro
+from robots_cpu import top_curve
 
 from mjx_emp.metrics import mean_and_stderr
-from mjx_emp.run import directory as run
+from mjx_emp.viz.plots import read_metrics
 
 ROBOTS = {"ant-field": ("ant-field-cpu-k1", "ant-field-cpu-k2"),
           "half-cheetah": ("half-cheetah-cpu-k1", "half-cheetah-cpu-k2")}
@@ -56,13 +57,6 @@ def read_curve_at(curve: list[list[float]], steps: float, window: int) -> dict:
     epoch, env_steps, volume, _ = curve[index]
     return {"epoch": int(epoch), "env_steps": env_steps, "top_volume": volume,
             "success": sum(point[3] for point in around) / len(around), "window_epochs": len(around)}
-
-
-def curve_from_run(run_dir: Path) -> list[list[float]]:
-    """``[epoch, env_steps, top volume, top success]`` per epoch from a run's metrics file."""
-    lines = (run_dir / run.METRICS_FILE).read_text().splitlines()
-    metrics = [json.loads(line) for line in lines if line]
-    return [[m["epoch"], m["env_steps"], m["levels"][-1]["volume"], m["levels"][-1]["success"]] for m in metrics]
 
 
 def summarise(points: list[dict]) -> dict:
@@ -105,7 +99,7 @@ def main(args: Args) -> None:
         label, _, path = item.partition("=")
         if not path:
             raise SystemExit(f"--extra: expected LABEL=RUN_DIR, got {item!r}")
-        extra[label] = curve_from_run(Path(path))
+        extra[label] = top_curve(read_metrics(Path(path)))
     report = equal_steps(rows, args.window, extra)
     for robot, entry in report.items():
         k1, k2 = entry["k1_summary"], entry["k2_summary"]

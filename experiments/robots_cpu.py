@@ -25,6 +25,7 @@ from baselines import merge_row, train_or_resume
 
 from mjx_emp.run import directory as run
 from mjx_emp.run.evaluate import phase1_figures, phase2_figures
+from mjx_emp.viz.plots import read_metrics
 
 
 @dataclasses.dataclass
@@ -48,12 +49,17 @@ class Args:
     out: str = "benchmarks/results/robots_cpu.json"
 
 
+def top_curve(metrics: list[dict]) -> list[list[float]]:
+    """Per epoch of a run's metrics: epoch, env steps, top box volume and greedy success on that
+    epoch's num_envs goals (the ``curve`` of a row, read by ``equal_steps.py``)."""
+    return [[m["epoch"], m["env_steps"], m["levels"][-1]["volume"], m["levels"][-1]["success"]] for m in metrics]
+
+
 def evaluate_run(run_dir: Path, preset: str, seed: int, episodes: int, epoch: int | None = None) -> dict:
     """One JSON row: what the run used and what its top level learned (at ``epoch``, or the newest)."""
     trainer, epoch, state = run.load_run(run_dir, epoch=epoch)
     figures = phase1_figures(trainer, state, jax.random.key(1000 + seed), episodes)
-    metrics = [json.loads(line) for line in (run_dir / run.METRICS_FILE).read_text().splitlines() if line]
-    metrics = [m for m in metrics if m["epoch"] <= epoch]
+    metrics = [m for m in read_metrics(run_dir) if m["epoch"] <= epoch]
     top = figures["levels"][-1]
     return {
         "preset": preset, "seed": seed, "run_dir": str(run_dir), "epoch": figures["epoch"],
@@ -64,9 +70,7 @@ def evaluate_run(run_dir: Path, preset: str, seed: int, episodes: int, epoch: in
         "coverage_cells": figures["coverage_cells"], "volume_x_success": figures["volume_x_success"],
         "flip_resets": sum(m.get("flip_resets", 0) for m in metrics),
         "levels": figures["levels"],
-        # per epoch: epoch, env steps, top box volume, greedy success on that epoch's num_envs goals
-        "curve": [[m["epoch"], m["env_steps"], m["levels"][-1]["volume"], m["levels"][-1]["success"]]
-                  for m in metrics],
+        "curve": top_curve(metrics),
         "phase2": phase2_of(run_dir, seed, episodes),
     }
 
