@@ -120,11 +120,11 @@ def phase2_of(run_dir: Path, seed: int, episodes: int = 400) -> dict:
     return {"phase2_min_distance": figures["min_distance"], "phase2_success": figures["success"]}
 
 
-def merge_row(out: Path, row: dict) -> list[dict]:
-    """Replace OUT's row for (preset, seed) with ROW, re-reading OUT first so that two
-    comparison scripts running side by side keep each other's rows; written atomically."""
+def merge_row(out: Path, row: dict, key: tuple[str, ...] = ("preset", "seed")) -> list[dict]:
+    """Replace OUT's row with ROW's ``key`` fields (preset and seed) by ROW, re-reading OUT first
+    so that two comparison scripts running side by side keep each other's rows; written atomically."""
     rows = json.loads(out.read_text())["rows"] if out.exists() else []
-    rows = [r for r in rows if (r["preset"], r["seed"]) != (row["preset"], row["seed"])] + [row]
+    rows = [r for r in rows if tuple(r[f] for f in key) != tuple(row[f] for f in key)] + [row]
     out.parent.mkdir(parents=True, exist_ok=True)
     partial = out.with_name(out.name + ".partial")
     partial.write_text(json.dumps({"backend": jax.default_backend(), "rows": rows}, indent=1))

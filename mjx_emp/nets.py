@@ -28,16 +28,25 @@ BoxFn = Callable[[Any, jax.Array], tuple[jax.Array, jax.Array]]
 
 
 class MLP(nn.Module):
-    """ReLU MLP with a linear output layer; ``out_scale`` shrinks the output layer's init."""
+    """ReLU MLP with a linear output layer; ``out_scale`` shrinks the output layer's init.
+
+    With ``layer_norm`` every hidden layer is normalised before its ReLU (Ball et al.
+    2023), which bounds the features a critic extrapolates from and keeps its values
+    from running away under many gradient steps per transition.
+    """
 
     hidden: Sequence[int]
     out: int
     out_scale: float = 1.0
+    layer_norm: bool = False
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
         for width in self.hidden:
-            x = nn.relu(nn.Dense(width)(x))
+            x = nn.Dense(width)(x)
+            if self.layer_norm:
+                x = nn.LayerNorm()(x)
+            x = nn.relu(x)
         init = nn.initializers.variance_scaling(self.out_scale, "fan_avg", "uniform")
         return nn.Dense(self.out, kernel_init=init)(x)
 

@@ -4,7 +4,16 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjx_emp.replay import flatten_rows, replay_clear_where, replay_init, replay_insert, replay_sample
+from mjx_emp.replay import (
+    episode_walk,
+    flatten_rows,
+    insertion_slots,
+    link_episode_rows,
+    replay_clear_where,
+    replay_init,
+    replay_insert,
+    replay_sample,
+)
 
 insert = jax.jit(replay_insert)
 
@@ -76,3 +85,35 @@ def test_rollout_transitions_flatten_into_the_buffer():
     buffer = insert(buffer, flat, flat["valid"])
     assert int(buffer.size) == int(valid.sum())
     np.testing.assert_array_equal(buffer.data["obs"][: int(valid.sum())], np.asarray(flat["obs"])[np.asarray(flat["valid"])])
+
+
+def test_episode_links_chain_each_environments_rows_until_its_episode_ends():
+    # Two environments over three steps: env 0 stores every step and its episode ends at step 1
+    # (a new one starts at step 2); env 1 stores steps 0 and 2 only, one episode throughout.
+    buffer = replay_init(example(), capacity=16)
+    valid = jnp.array([[True, True], [True, False], [True, True]])
+    final = jnp.array([[False, False], [True, False], [False, False]])
+    slots, count = insertion_slots(buffer, valid.reshape(-1))
+    assert int(count) == 5
+    slots = slots.reshape(valid.shape)
+    none = buffer.capacity
+    successor = jnp.full(16, 7, jnp.int32)  # stale links in reused slots must be forgotten
+    successor, last = link_episode_rows(successor, slots, valid, final, jnp.full(2, none, jnp.int32))
+    # slots in insertion order: (t0,e0)=0, (t0,e1)=1, (t1,e0)=2, (t2,e0)=3, (t2,e1)=4
+    np.testing.assert_array_equal(successor[:5], [2, 4, none, none, none])
+    np.testing.assert_array_equal(last, [3, 4])
+    walk, exists = episode_walk(successor, jnp.array([0, 1, 3]), 3)
+    np.testing.assert_array_equal(exists, [[True, True, True], [True, True, False], [False, False, False]])
+    np.testing.assert_array_equal(walk[:2], [[0, 1, 3], [2, 4, 15]])
+
+
+def test_episode_links_continue_across_chunks_through_last():
+    buffer = replay_init(example(), capacity=8)
+    successor = jnp.full(8, 8, jnp.int32)
+    last = jnp.array([5, 8], jnp.int32)  # env 0's running episode ended its previous chunk at slot 5
+    buffer = buffer.replace(insert_pos=jnp.int32(6), size=jnp.int32(6))
+    slots, _ = insertion_slots(buffer, jnp.array([True, True]))
+    successor, last = link_episode_rows(successor, slots.reshape(1, 2), jnp.array([[True, True]]),
+                                        jnp.array([[False, True]]), last)
+    assert int(successor[5]) == 6 and int(successor[6]) == 8 and int(successor[7]) == 8
+    np.testing.assert_array_equal(last, [6, 8])

@@ -16,7 +16,16 @@ from mjx_emp.algos.he.agent import MODE_EVAL, MODE_GC, MODE_GS, MODE_STARTS, TRA
 from mjx_emp.algos.he.config import TrainConfig
 from mjx_emp.envs.env import make_env
 from mjx_emp.errors import ConfigError
-from mjx_emp.learners.ddpg import DDPGLearner, GoalTransition, ddpg_losses, relabel_goals, reward_cap
+from mjx_emp.learners.ddpg import (
+    DDPGLearner,
+    GoalTransition,
+    ddpg_losses,
+    hindsight_goals,
+    n_step_backup,
+    one_step_backup,
+    relabel_goals,
+    reward_cap,
+)
 from mjx_emp.learners.goal_space import GoalSpaceSample
 from mjx_emp.nets import greedy_batch
 from mjx_emp.replay import replay_insert
@@ -378,3 +387,85 @@ def test_start_buffers_begin_with_the_initial_state_and_stay_within_the_chains_r
             assert np.all(distance <= bound), (epoch, level, distance.max(), bound)
             assert distance.max() > 1e-3, "rows are states the chain reached, not copies of the start"
     assert reach(1) > 1e-3, "the probe push moves the point mass"
+
+
+def _one_episode_rows(env, positions, goal, successor):
+    """Stored rows of a point-mass episode that walked through ``positions`` (one row per move)."""
+    obs = jnp.zeros((len(positions), env.obs_size)).at[:, :2].set(jnp.asarray(positions))
+    rows = len(positions) - 1
+    return GoalTransition(obs=obs[:-1], goal=jnp.broadcast_to(jnp.asarray(goal), (rows, 2)),
+                          action=jnp.zeros((rows, 2)), next_obs=obs[1:],
+                          reached=jnp.linalg.norm(obs[1:, :2] - jnp.asarray(goal), axis=-1) < 0.3,
+                          successor=jnp.asarray(successor, jnp.int32))
+
+
+def test_hindsight_goals_are_states_the_episode_reached_later():
+    env = make_env("point_mass")
+    # Two episodes in one buffer of capacity 7: slots 0-3 (moves along x), slots 4-5 (along y); slot 6 empty.
+    a = _one_episode_rows(env, [[0, 0], [1, 0], [2, 0], [3, 0], [4, 0]], [9.0, 9.0], [1, 2, 3, 7])
+    b = _one_episode_rows(env, [[0, 0], [0, 1], [0, 2]], [-9.0, -9.0], [5, 7])
+    rows = jax.tree.map(lambda x, y: jnp.concatenate([x, y, y[:1]]), a, b)
+    slots = jnp.tile(jnp.arange(6), 50)
+    batch = jax.tree.map(lambda x: x[slots], rows)
+    relabelled = hindsight_goals(rows, slots, batch, jax.random.key(1), 1.0, env, 0.3, horizon=4)
+    goal = np.asarray(relabelled.goal)
+    later = {0: [1, 2, 3, 4], 1: [2, 3, 4], 2: [3, 4], 3: [4], 4: [1, 2], 5: [2]}  # achieved positions after each row
+    for slot, g in zip(np.asarray(slots), goal):
+        step = g[0] if slot < 4 else g[1]
+        assert step in later[int(slot)] and g[1 if slot < 4 else 0] == 0.0
+    assert {float(g[0]) for s, g in zip(np.asarray(slots), goal) if s == 0} == {1.0, 2.0, 3.0, 4.0}  # all of them drawn
+    np.testing.assert_array_equal(relabelled.reached, np.linalg.norm(goal - np.asarray(batch.next_obs[:, :2]), axis=-1) < 0.3)
+    assert np.asarray(relabelled.reached)[np.asarray(slots) == 3].all()  # the last row's only future is its own
+    # Reward and discount of a relabelled row follow from its new goal.
+    backup = one_step_backup(relabelled, env, 0.4, 0.9)
+    np.testing.assert_allclose(backup.reward, gce.goal_conditioned_reward(relabelled.goal, batch.next_obs[:, :2], 0.4))
+    np.testing.assert_allclose(backup.discount, np.where(np.asarray(relabelled.reached), 0.0, 0.9))
+    untouched = hindsight_goals(rows, slots, batch, jax.random.key(1), 0.0, env, 0.3, horizon=4)
+    np.testing.assert_array_equal(untouched.goal, batch.goal)
+
+
+def test_n_step_target_equals_its_closed_form():
+    env = make_env("point_mass")
+    sigma, gamma = 0.5, 0.9
+    goal = jnp.array([3.0, 0.0])
+    # One episode: 0 -> 1 -> 2 -> 3 (reaches the goal) -> 4.
+    rows = _one_episode_rows(env, [[0, 0], [1, 0], [2, 0], [3, 0], [4, 0]], goal, [1, 2, 3, 4])
+    r = [float(gce.goal_conditioned_reward(goal, jnp.array([x, 0.0]), sigma)) for x in (1, 2, 3, 4)]
+    slots = jnp.array([0, 1, 2, 3])
+    batch = jax.tree.map(lambda x: x[slots], rows)
+    backup = n_step_backup(rows, slots, batch, env, sigma, gamma, eps=0.3, steps=2)
+    # row 0: r1 + g r2, bootstrap from x=2 with g^2; row 1: r2 + g r3, then reached (no bootstrap);
+    # row 2: r3, reached at once; row 3: the episode's last row, r4 and bootstrap from x=4 with g.
+    np.testing.assert_allclose(backup.reward, [r[0] + gamma * r[1], r[1] + gamma * r[2], r[2], r[3]], rtol=1e-6)
+    np.testing.assert_allclose(backup.discount, [gamma ** 2, 0.0, 0.0, gamma], rtol=1e-6)
+    np.testing.assert_array_equal(backup.next_obs[:, 0], [2.0, 3.0, 3.0, 4.0])
+    one = n_step_backup(rows, slots, batch, env, sigma, gamma, eps=0.3, steps=1)
+    expected = one_step_backup(batch, env, sigma, gamma)
+    for got, want in zip(jax.tree.leaves(one), jax.tree.leaves(expected)):
+        np.testing.assert_allclose(got, want, rtol=1e-6)
+
+
+def test_layer_norm_only_where_configured():
+    def layer_norms(params) -> int:
+        return sum("LayerNorm" in "/".join(str(k) for k in path) for path, _ in jax.tree_util.tree_leaves_with_path(params))
+
+    for critic_ln, actor_ln in ((True, False), (False, True)):
+        state = Trainer(dataclasses.replace(TINY, critic_layer_norm=critic_ln, actor_layer_norm=actor_ln)).init()
+        for level in range(TINY.k):
+            assert layer_norms(state.policies[level].critic) == (2 * len(TINY.hidden) if critic_ln else 0)
+            assert layer_norms(state.policies[level].actor) == (2 * len(TINY.hidden) if actor_ln else 0)
+            assert layer_norms(state.goal_spaces[level].critic) == 0  # the goal-space critic stays the paper's
+
+
+def test_stored_rows_link_to_the_next_row_of_their_episode():
+    trainer, _, state, _, _ = tiny_after_two_epochs()
+    for level in range(TINY.k):
+        data, size = state.replay[level].data, int(state.replay[level].size)
+        successor = np.asarray(data.successor[:size])
+        linked = np.flatnonzero(successor < state.replay[level].capacity)
+        assert linked.size > 0
+        nxt = successor[linked]
+        assert (nxt < size).all() and (nxt > linked).all()
+        np.testing.assert_array_equal(data.obs[nxt], data.next_obs[linked])  # the episode goes on from s'
+        np.testing.assert_array_equal(data.goal[nxt], data.goal[linked])
+        assert not np.asarray(data.reached[linked]).any()  # a reached goal ends its episode

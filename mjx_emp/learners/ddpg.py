@@ -16,6 +16,7 @@ from flax import struct
 from mjx_emp import gce
 from mjx_emp.envs.env import Env
 from mjx_emp.learners.common import actor_critic_step
+from mjx_emp.replay import episode_walk
 from mjx_emp.rollout.hierarchy import Params, Transition
 
 
@@ -40,6 +41,73 @@ class GoalTransition:
     action: jax.Array
     next_obs: jax.Array
     reached: jax.Array
+    successor: jax.Array | None = None
+    """Slot of the next stored row of the same episode (the buffer's capacity: none), in a
+    replay that links episodes (see :func:`mjx_emp.replay.link_episode_rows`); else None."""
+
+
+@struct.dataclass
+class Backup:
+    """What a critic's target is built from: the discounted reward of the steps taken, the
+    discount left after them (0 once the goal was reached) and the state to bootstrap from."""
+
+    reward: jax.Array
+    discount: jax.Array
+    next_obs: jax.Array
+
+
+def one_step_backup(batch: GoalTransition, env: Env, sigma: float, gamma: float) -> Backup:
+    """The paper's one-step target: r = log N(goal; h(s'), sigma), discount gamma until reached."""
+    reward = gce.goal_conditioned_reward(batch.goal, env.goal_of_obs(batch.next_obs), sigma)
+    return Backup(reward=reward, discount=gce.goal_conditioned_discount(batch.reached, gamma), next_obs=batch.next_obs)
+
+
+def n_step_backup(rows: GoalTransition, slots: jax.Array, batch: GoalTransition, env: Env, sigma: float,
+                  gamma: float, eps: float, steps: int) -> Backup:
+    """An n-step target for ``batch`` (the rows at ``slots`` of the stored ``rows``, goals possibly relabelled).
+
+    Follows each row's episode for up to ``steps`` stored transitions: sum_j gamma^j r_j,
+    every r_j scored against the batch row's goal, stopping after the step that reaches
+    it (then nothing is bootstrapped) or at the episode's last stored row, whose next
+    state is bootstrapped from with discount gamma^m. The later steps' actions came from
+    older policies; as in most n-step off-policy learners nothing corrects for that.
+    """
+    walk, exists = episode_walk(rows.successor, slots, steps)
+    next_obs = rows.next_obs[walk]  # [steps, B, obs]
+    achieved = env.goal_of_obs(next_obs)
+    reached = jnp.linalg.norm(achieved - batch.goal, axis=-1) < eps
+    reached = reached.at[0].set(batch.reached)
+    reward = gce.goal_conditioned_reward(batch.goal, achieved, sigma)
+    total, discount, boot = jnp.zeros_like(reward[0]), jnp.ones_like(reward[0]), batch.next_obs
+    going = jnp.ones_like(exists[0])
+    for j in range(steps):
+        take = going & exists[j]
+        total = total + jnp.where(take, discount * reward[j], 0.0)
+        boot = jnp.where(take[:, None], next_obs[j], boot)
+        discount = jnp.where(take, discount * gce.goal_conditioned_discount(reached[j], gamma), discount)
+        going = take & ~reached[j]
+    return Backup(reward=total, discount=discount, next_obs=boot)
+
+
+def hindsight_goals(rows: GoalTransition, slots: jax.Array, batch: GoalTransition, key: jax.Array,
+                    fraction: float, env: Env, eps: float, horizon: int) -> GoalTransition:
+    """``batch`` with a ``fraction`` of its rows given a goal their own episode achieved later.
+
+    HER's "future" strategy (Andrychowicz et al. 2017): row t's new goal is h(s_{t'+1})
+    for t' drawn uniformly from t and the episode's later stored rows (at most ``horizon``,
+    the level's actions per episode), so misses become reached goals at every distance
+    the episode covered; ``reached`` is recomputed against the new goal.
+    """
+    walk, exists = episode_walk(rows.successor, slots, horizon)
+    pick_key, which_key = jax.random.split(key)
+    count = exists.sum(axis=0)  # the walk's rows exist as a prefix
+    step = jnp.minimum(jnp.floor(jax.random.uniform(pick_key, count.shape) * count).astype(jnp.int32), count - 1)
+    chosen = walk[step, jnp.arange(slots.shape[0])]
+    future = env.goal_of_obs(rows.next_obs[chosen])
+    swap = jax.random.uniform(which_key, count.shape) < fraction
+    reached = jnp.linalg.norm(env.goal_of_obs(batch.next_obs) - future, axis=-1) < eps
+    return batch.replace(goal=jnp.where(swap[:, None], future, batch.goal),
+                         reached=jnp.where(swap, reached, batch.reached))
 
 
 def reward_cap(goal_size: int, sigma: float, gamma: float) -> float:
@@ -52,24 +120,25 @@ def reward_cap(goal_size: int, sigma: float, gamma: float) -> float:
     return max(peak, peak / (1.0 - gamma))
 
 
-def ddpg_losses(policy, q_value, learner: DDPGLearner, batch: GoalTransition, env: Env, sigma: float, gamma: float):
+def ddpg_losses(policy, q_value, learner: DDPGLearner, batch: GoalTransition, env: Env, sigma: float, gamma: float,
+                backup: Backup | None = None):
     """(critic loss, actor loss) functions of one goal-conditioned DDPG minibatch.
 
     ``policy(actor, obs, goal)`` is the deterministic policy over a batch and
     ``q_value(critic, obs, goal, action)`` the critic: [B] values, or [critics, B] for a
     clipped double-Q ensemble, whose targets bootstrap from the smallest. The reward is
     the paper's log N(goal; h(s'), sigma); the discount drops to 0 once the goal is
-    reached, and bootstrapped values are capped at :func:`reward_cap`. Every
-    goal-conditioned level of phase 1, and phase 2's added level, learn with these losses.
+    reached, and bootstrapped values are capped at :func:`reward_cap`. ``backup`` replaces
+    the one-step target (an n-step one, say). Every goal-conditioned level of phase 1, and
+    phase 2's added level, learn with these losses.
     """
-    reward = gce.goal_conditioned_reward(batch.goal, env.goal_of_obs(batch.next_obs), sigma)
-    discount = gce.goal_conditioned_discount(batch.reached, gamma)
-    next_action = policy(learner.target_actor, batch.next_obs, batch.goal)
-    next_q = q_value(learner.target_critic, batch.next_obs, batch.goal, next_action)
-    if next_q.ndim > reward.ndim:
+    backup = one_step_backup(batch, env, sigma, gamma) if backup is None else backup
+    next_action = policy(learner.target_actor, backup.next_obs, batch.goal)
+    next_q = q_value(learner.target_critic, backup.next_obs, batch.goal, next_action)
+    if next_q.ndim > backup.reward.ndim:
         next_q = next_q.min(axis=0)
     cap = reward_cap(env.goal_size, sigma, gamma)
-    target = jax.lax.stop_gradient(reward + discount * jnp.minimum(next_q, cap))
+    target = jax.lax.stop_gradient(backup.reward + backup.discount * jnp.minimum(next_q, cap))
 
     def critic_loss(critic):
         q = q_value(critic, batch.obs, batch.goal, batch.action)
@@ -114,6 +183,8 @@ def relabel_goals(batch: GoalTransition, key: jax.Array, fraction: float, env: E
     return batch.replace(goal=goal, reached=jnp.where(swap, reached, batch.reached))
 
 
-def goal_transitions(t: Transition) -> GoalTransition:
-    """The stored form of a level's transitions (reward and discount are derived on sampling)."""
-    return GoalTransition(obs=t.obs, goal=t.goal, action=t.action, next_obs=t.next_obs, reached=t.reached)
+def goal_transitions(t: Transition, successor: jax.Array | None = None) -> GoalTransition:
+    """The stored form of a level's transitions (reward and discount are derived on sampling);
+    ``successor`` gives rows episode links (see :class:`GoalTransition`)."""
+    return GoalTransition(obs=t.obs, goal=t.goal, action=t.action, next_obs=t.next_obs, reached=t.reached,
+                          successor=successor)

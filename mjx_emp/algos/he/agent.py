@@ -31,7 +31,17 @@ from mjx_emp.algos.he.config import GcrlConfig, TrainConfig, check_gcrl_config, 
 from mjx_emp.counters import StepCounter
 from mjx_emp.envs.env import Env, make_env
 from mjx_emp.learners.common import actor_critic_step, all_finite
-from mjx_emp.learners.ddpg import DDPGLearner, GoalTransition, ddpg_losses, ddpg_step, goal_transitions, relabel_goals
+from mjx_emp.learners.ddpg import (
+    Backup,
+    DDPGLearner,
+    GoalTransition,
+    ddpg_losses,
+    ddpg_step,
+    goal_transitions,
+    hindsight_goals,
+    n_step_backup,
+    relabel_goals,
+)
 from mjx_emp.learners.goal_space import GoalSpaceLearner, GoalSpaceSample, svg_losses
 from mjx_emp.metrics import epoch_header
 from mjx_emp.nets import (
@@ -44,7 +54,17 @@ from mjx_emp.nets import (
     level_policy,
     primitive_box,
 )
-from mjx_emp.replay import ReplayBuffer, flatten_rows, replay_clear_where, replay_init, replay_insert, replay_sample
+from mjx_emp.replay import (
+    ReplayBuffer,
+    flatten_rows,
+    insertion_slots,
+    link_episode_rows,
+    replay_clear_where,
+    replay_init,
+    replay_insert,
+    replay_sample,
+    sample_slots,
+)
 from mjx_emp.rollout.collect import CollectTotals, collect
 from mjx_emp.rollout.hierarchy import (
     Driver,
@@ -53,6 +73,7 @@ from mjx_emp.rollout.hierarchy import (
     Params,
     RolloutPlan,
     RolloutState,
+    Transition,
     init_rollout,
     rollout,
 )
@@ -161,11 +182,17 @@ class Trainer:
         return self.env.action_size if level == 0 else self.env.goal_size
 
     def actor_net(self, level: int) -> MLP:
-        return MLP(tuple(self.cfg.hidden), self.action_size(level))
+        return MLP(tuple(self.cfg.hidden), self.action_size(level), layer_norm=self.cfg.actor_layer_norm)
 
     @functools.cached_property
     def critic_net(self) -> MLP:
+        """The goal-space critics' network."""
         return MLP(tuple(self.cfg.hidden), 1)
+
+    @functools.cached_property
+    def gc_critic_net(self) -> MLP:
+        """The goal-conditioned critics' network."""
+        return MLP(tuple(self.cfg.hidden), 1, layer_norm=self.cfg.critic_layer_norm)
 
     def gs_actor_net(self, level: int) -> GoalSpaceActor:
         c = self.cfg
@@ -198,8 +225,8 @@ class Trainer:
     def q_value(self, params: Params, obs: jax.Array, goal: jax.Array, action: jax.Array) -> jax.Array:
         """Q(s, z, a) of a level's goal-conditioned critic; [critics, ...] with several critics."""
         if self.cfg.critics == 1:
-            return goal_conditioned_q(self.critic_net, self.env, params, obs, goal, action)
-        return jax.vmap(lambda p: goal_conditioned_q(self.critic_net, self.env, p, obs, goal, action))(params)
+            return goal_conditioned_q(self.gc_critic_net, self.env, params, obs, goal, action)
+        return jax.vmap(lambda p: goal_conditioned_q(self.gc_critic_net, self.env, p, obs, goal, action))(params)
 
     def gs_value(self, params: Params, obs: jax.Array, noise: jax.Array, action: jax.Array) -> jax.Array:
         """R(s0, noise, a) of a goal-space critic."""
@@ -233,16 +260,17 @@ class Trainer:
             actor = self.actor_net(level).init(keys[0], goal_features(env, obs, goal))
             critic_input = jnp.concatenate([goal_features(env, obs, goal), action])
             if cfg.critics == 1:
-                critic = self.critic_net.init(keys[1], critic_input)
+                critic = self.gc_critic_net.init(keys[1], critic_input)
             else:
                 critic_keys = jax.random.split(keys[1], cfg.critics)
-                critic = jax.vmap(lambda k: self.critic_net.init(k, critic_input))(critic_keys)
+                critic = jax.vmap(lambda k: self.gc_critic_net.init(k, critic_input))(critic_keys)
             policies.append(DDPGLearner(actor, critic, actor, critic, opt["actor"].init(actor), opt["critic"].init(critic)))
             gs_action = jnp.zeros(2 * env.goal_size)
             gs_actor = self.gs_actor_net(level).init(keys[2], env.features(obs))
             gs_critic = self.critic_net.init(keys[3], jnp.concatenate([env.features(obs), goal, gs_action]))
             goal_spaces.append(GoalSpaceLearner(gs_actor, gs_critic, opt["gs_actor"].init(gs_actor), opt["gs_critic"].init(gs_critic)))
-            replay.append(replay_init(GoalTransition(obs, goal, action, obs, jnp.zeros((), bool)), cfg.replay_capacity))
+            row = GoalTransition(obs, goal, action, obs, jnp.zeros((), bool), successor=jnp.zeros((), jnp.int32))
+            replay.append(replay_init(row, cfg.replay_capacity))
             goal_space_replay.append(replay_init(GoalSpaceSample(obs, goal, gs_action, jnp.zeros(())), cfg.gs_replay_capacity))
             start_buffer = replay_init(obs, cfg.start_capacity)
             starts.append(replay_insert(start_buffer, obs[None], jnp.ones(1, bool)))
@@ -330,13 +358,13 @@ class Trainer:
             lambda: init_rollout(hierarchy, params, self.start, start_params, key, cfg.num_envs, root),
         )
         def absorb(kept, transitions, episodes, stats):
-            (replay, goal_space_replay, starts), totals = kept
+            (replay, goal_space_replay, starts, last), totals = kept
+            replay, last = zip(*(
+                self._store_linked(replay[i], last[i], transitions[i], (root == i) & (mode == MODE_GC))
+                for i in range(cfg.k)
+            ))
             transitions = flatten_rows(transitions)
             episodes = flatten_rows(episodes)
-            replay = tuple(
-                replay_insert(replay[i], goal_transitions(transitions[i]), transitions[i].valid & (root == i) & (mode == MODE_GC))
-                for i in range(cfg.k)
-            )
             first_episode = episodes.ended & (episodes.index == 0)
             goal_space_replay = tuple(
                 replay_insert(goal_space_replay[i], self._goal_space_sample(i, episodes), episodes.valid & (root == i) & (mode == MODE_GS))
@@ -354,15 +382,16 @@ class Trainer:
             )
             root_valid = jnp.stack([t.valid for t in transitions])[root]
             totals = totals.add(stats, root_valid, first_episode, episodes.reached, distance)
-            return (replay, goal_space_replay, starts), totals
+            return (replay, goal_space_replay, starts, last), totals
 
         replay, goal_space_replay = state.replay, state.goal_space_replay
         if cfg.fresh_replay:
             replay = tuple(replay_clear_where(b, (root == i) & (mode == MODE_GC)) for i, b in enumerate(replay))
             goal_space_replay = tuple(replay_clear_where(b, (root == i) & (mode == MODE_GS)) for i, b in enumerate(goal_space_replay))
-        rollout_state, ((replay, goal_space_replay, starts), totals) = collect(
+        no_rows = tuple(jnp.full(first.episodes_done.shape, b.capacity, jnp.int32) for b in replay)  # episodes begin afresh
+        rollout_state, ((replay, goal_space_replay, starts, _), totals) = collect(
             hierarchy, params, self.start, start_params, first, cfg.chunk_steps, self._max_chunks()[root], absorb,
-            ((replay, goal_space_replay, state.starts), CollectTotals.zero()), fixed_length=is_chain,
+            ((replay, goal_space_replay, state.starts, no_rows), CollectTotals.zero()), fixed_length=is_chain,
         )
         chain = jax.lax.cond(is_chain, lambda: rollout_state, lambda: state.chain)
         totals = shard_sum(totals, self.shard_axes)  # every shard counts the whole run's steps and episodes
@@ -371,6 +400,20 @@ class Trainer:
             env_steps=state.env_steps.add(totals.env_steps),
         )
         return state, totals
+
+    @staticmethod
+    def _store_linked(buffer: ReplayBuffer, last: jax.Array, transitions: Transition, store: jax.Array):
+        """Insert a chunk's [T, B] transitions where valid and ``store``, linking each to the
+        next row of its episode (for hindsight goals and n-step targets); returns the
+        buffer and each environment's latest stored row of a running episode."""
+        valid = transitions.valid & store
+        slots, count = insertion_slots(buffer, valid.reshape(-1))
+        none = jnp.full(valid.shape, buffer.capacity, jnp.int32)
+        rows = flatten_rows(goal_transitions(transitions, successor=none))
+        buffer = replay_insert(buffer, rows, valid)
+        successor, last = link_episode_rows(buffer.data.successor, slots.reshape(valid.shape), valid,
+                                            transitions.final & store, last)
+        return buffer.replace(data=buffer.data.replace(successor=successor)), last
 
     def _goal_space_sample(self, level: int, episodes: EpisodeEnd) -> GoalSpaceSample:
         """Goal-space samples from finished episodes, rewarded with the level's sigma_gs."""
@@ -383,13 +426,15 @@ class Trainer:
         return GoalSpaceSample(obs=info.obs, noise=info.noise, action=info.action, reward=reward)
 
     # ---- learning -------------------------------------------------------------------
-    def gc_losses(self, level: int, learner: DDPGLearner, box: Params, batch: GoalTransition):
-        """(critic loss, actor loss) functions of one goal-conditioned minibatch (DDPG)."""
+    def gc_losses(self, level: int, learner: DDPGLearner, box: Params, batch: GoalTransition,
+                  backup: Backup | None = None):
+        """(critic loss, actor loss) functions of one goal-conditioned minibatch (DDPG);
+        ``backup`` replaces the one-step target."""
         cfg = self.cfg
         policy = self.hierarchy.policies[level]
         return ddpg_losses(
             lambda actor, obs, goal: greedy_batch(policy, actor, box)(obs, goal),
-            self.q_value, learner, batch, self.env, cfg.sigma_gc[level], cfg.gamma,
+            self.q_value, learner, batch, self.env, cfg.sigma_gc[level], cfg.gamma, backup,
         )
 
     def gc_update(self, level: int):
@@ -401,11 +446,19 @@ class Trainer:
             box = None if level == 0 else goal_spaces[level - 1].actor
 
             def step(learner: DDPGLearner, step_key):
-                sample_key, relabel_key = jax.random.split(step_key)
-                batch = replay_sample(replay[level], sample_key, cfg.batch_size)
+                sample_key, her_key, relabel_key = jax.random.split(step_key, 3)
+                rows = replay[level].data
+                slots = sample_slots(replay[level], sample_key, cfg.batch_size)
+                batch = jax.tree.map(lambda x: x[slots], rows)
+                if cfg.her > 0:
+                    batch = hindsight_goals(rows, slots, batch, her_key, cfg.her, self.env, cfg.eps[level], cfg.n[level])
                 if cfg.relabel > 0:
                     batch = relabel_goals(batch, relabel_key, cfg.relabel, self.env, cfg.eps[level])
-                losses = self.gc_losses(level, learner, box, batch)
+                backup = None
+                if cfg.n_step > 1:
+                    backup = n_step_backup(rows, slots, batch, self.env, cfg.sigma_gc[level], cfg.gamma,
+                                           cfg.eps[level], cfg.n_step)
+                losses = self.gc_losses(level, learner, box, batch, backup)
                 return ddpg_step(learner, losses, opt["actor"], opt["critic"], cfg.tau)
 
             learner, losses = jax.lax.scan(step, policies[level], jax.random.split(key, cfg.gc_grad_steps))

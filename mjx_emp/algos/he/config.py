@@ -91,6 +91,19 @@ class TrainConfig:
     row's (goal = h(s) + that row's goal - h(s)), with reached recomputed. The reward
     depends only on h(s') and the goal, so any goal makes a valid transition; 0 is the
     paper's Algorithm 2."""
+    her: float = 0.0
+    """Fraction of every goal-conditioned minibatch whose goal is replaced by one its own
+    episode achieved later (HER's "future" strategy, Andrychowicz et al. 2017), with
+    reached recomputed; applied before ``relabel``. 0 is the paper's Algorithm 2."""
+    n_step: int = 1
+    """Transitions of a row's episode summed into each critic target before bootstrapping
+    (an uncorrected n-step return; it stops where the goal is reached). 1 is the paper's
+    one-step DDPG target."""
+    critic_layer_norm: bool = False
+    """LayerNorm before every hidden ReLU of the goal-conditioned critics (Ball et al. 2023).
+    False is the paper's plain MLP."""
+    actor_layer_norm: bool = False
+    """LayerNorm before every hidden ReLU of the goal-conditioned actors."""
     critics: int = 1
     """Goal-conditioned critics per level. 1 is the paper's DDPG; 2 is TD3's clipped
     double-Q (Fujimoto et al. 2018): two critics, bootstrapped targets from the smaller
@@ -117,7 +130,7 @@ class TrainConfig:
 
 
 _PER_LEVEL = ("n", "sigma_gc", "sigma_gs", "eps", "init_half_width", "max_half_width")
-_POSITIVE = ("epochs", "num_envs", "chunk_steps", "gc_iterations", "gc_grad_steps", "critics",
+_POSITIVE = ("epochs", "num_envs", "chunk_steps", "gc_iterations", "gc_grad_steps", "critics", "n_step",
              "gs_iterations", "gs_grad_steps", "batch_size", "replay_capacity",
              "gs_replay_capacity", "start_capacity", "start_chain", "start_chunks")
 
@@ -155,6 +168,8 @@ def check_train_config(cfg: TrainConfig, positive: tuple[str, ...] = _POSITIVE) 
                     ("action_noise", "goal_noise", "gs_noise"))
     if not 0 <= cfg.relabel <= 1:
         raise ConfigError(f"relabel: a fraction in [0, 1]; got {cfg.relabel}")
+    if not 0 <= cfg.her <= 1:
+        raise ConfigError(f"her: a fraction in [0, 1]; got {cfg.her}")
     check_finite(cfg)
     # One step of every environment; a collection chunk larger than the ring keeps its newest rows.
     check_capacity(cfg, "replay_capacity", {"a minibatch (batch_size)": cfg.batch_size,

@@ -1,0 +1,97 @@
+"""The goal-conditioned learner's options on the Ant, one JSON row per (variant, seed).
+
+Each variant is ``ant-field-cpu-k1`` with some learner options changed (hindsight goals,
+LayerNorm, n-step targets, update-to-data ratio). It is trained on the full curriculum
+(``curriculum``: the goal space is learnt) or with the goal box held at +-1.5 m around the
+start (``fixed-box``: goal-space learning off, the learner alone), to ``--env-steps`` or
+the variant's epoch count, then evaluated as `mjx-emp eval` does (400 greedy goals from the
+top box at the initial state, coverage cells of 48 greedy skills). Rows carry ``variant``,
+``setting``, ``seed``, ``env_steps``, ``wall_s`` (training time summed from the run's
+metrics, compile included), ``top_area``, ``success``, ``coverage_cells``, the config and
+the per-epoch curve. ``python experiments/learner_ablation.py --variants her ln --seeds 0``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from pathlib import Path
+
+import jax
+import tyro
+from baselines import merge_row
+from robots_cpu import evaluate_run
+
+from mjx_emp.algos.he.config import TrainConfig
+from mjx_emp.algos.he.presets import ANT_FIELD_CPU_K1
+from mjx_emp.commands import ResumeExperiment, TrainExperiment
+from mjx_emp.run import directory as run
+
+LEARNER_OPTIONS: dict[str, dict] = {
+    "base": {},
+    "her": dict(her=0.5),
+    "ln": dict(critic_layer_norm=True),
+    "ln-utd2": dict(critic_layer_norm=True, gc_grad_steps=200),
+    "nstep3": dict(n_step=3),
+    "her-ln": dict(her=0.5, critic_layer_norm=True),
+    "her-ln-nstep3": dict(her=0.5, critic_layer_norm=True, n_step=3),
+}
+"""Variant name -> the learner fields it changes in ant-field-cpu-k1."""
+
+STEPS_PER_EPOCH = 6720
+"""Environment steps of one ant-field-cpu-k1 epoch: 16 environments x 20 steps x (10 goal-conditioned,
+8 goal-space and 1 evaluation collections, 2 start-chain chunks)."""
+
+FIXED_BOX = dict(init_half_width=(1.5,), gs_actor_lr=1e-9)
+"""The fixed-box diagnostic: the goal box starts at +-1.5 m and its actor (almost) does not learn."""
+
+
+@dataclasses.dataclass
+class Args:
+    """Learner variants x seeds on the Ant, trained and evaluated alike."""
+
+    variants: tuple[str, ...] = tuple(LEARNER_OPTIONS)
+    setting: str = "curriculum"
+    """curriculum (the goal space is learnt) or fixed-box (the learner alone on a +-1.5 m box)."""
+    seeds: tuple[int, ...] = (0,)
+    env_steps: float | None = None
+    """Train to about this many environment steps (whole epochs); None keeps the preset's epochs."""
+    base: str = "runs/learner_ablation"
+    episodes: int = 400
+    out: str = "benchmarks/results/learner_ablation_cpu.json"
+
+
+def variant_config(variant: str, setting: str, seed: int, env_steps: float | None) -> TrainConfig:
+    """ant-field-cpu-k1 with VARIANT's learner options, in SETTING, for SEED, sized to ENV_STEPS."""
+    if variant not in LEARNER_OPTIONS:
+        raise SystemExit(f"variants: {variant!r} is unknown; allowed values: {sorted(LEARNER_OPTIONS)}")
+    if setting not in ("curriculum", "fixed-box"):
+        raise SystemExit(f"setting: {setting!r} is unknown; allowed values: ['curriculum', 'fixed-box']")
+    config = dataclasses.replace(ANT_FIELD_CPU_K1, seed=seed, **LEARNER_OPTIONS[variant],
+                                 **(FIXED_BOX if setting == "fixed-box" else {}))
+    if env_steps is not None:
+        config = dataclasses.replace(config, epochs=math.ceil(env_steps / STEPS_PER_EPOCH))
+    return config
+
+
+def main(args: Args) -> None:
+    out = Path(args.out)
+    for variant in args.variants:
+        for seed in args.seeds:
+            config = variant_config(variant, args.setting, seed, args.env_steps)
+            run_dir = Path(args.base) / f"{args.setting}-{variant}-s{seed}"
+            if (run_dir / run.CONFIG_FILE).exists():
+                run.resume(ResumeExperiment(resume=str(run_dir), epochs=config.epochs))
+            else:
+                run.train(TrainExperiment(config=config, run_dir=str(run_dir)))
+            row = {"variant": variant, "setting": args.setting,
+                   **evaluate_run(run_dir, "ant-field-cpu-k1", seed, args.episodes),
+                   "config": dataclasses.asdict(config)}
+            print(json.dumps({k: v for k, v in row.items() if k not in ("levels", "curve", "config")}), flush=True)
+            merge_row(out, row, key=("variant", "setting", "seed", "env_steps"))
+    print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+    main(tyro.cli(Args))
