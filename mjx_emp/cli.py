@@ -163,7 +163,7 @@ def evaluate(exp: EvalExperiment) -> dict:
         raise ConfigError(f"episodes: must be >= 1; got {exp.episodes}")
     import jax
 
-    from mjx_emp.metrics import aggregate_agent, aggregate_phase2, aggregate_runs
+    from mjx_emp.metrics import LEVEL_FIGURES, aggregate_agent, aggregate_phase2, aggregate_runs
     from mjx_emp.run.evaluate import COVERAGE_SKILLS, phase1_figures, phase2_figures, skill_figures
 
     algorithms = {algorithm_of(run.read_run_config(Path(d), "run_dirs")).name for d in exp.run_dirs}
@@ -186,10 +186,11 @@ def evaluate(exp: EvalExperiment) -> dict:
     out = Path(exp.out or Path(exp.run_dirs[0]) / "eval.json")
     out.write_text(json.dumps(report, indent=1))
     print(f"{len(runs)} run(s); mean ± standard error over runs")
-    print("| level | goal-space volume | greedy success | final distance |")
-    print("|---|---|---|---|")
+    print("| level | goal-space volume | greedy success | final distance | success from s0 | success from "
+          "chained starts | cut short (flipped) |")
+    print("|---|---|---|---|---|---|---|")
     for row in report["levels"]:
-        cells = [f"{row[name]['mean']:.3g} ± {row[name]['stderr']:.2g}" for name in ("volume", "success", "final_distance")]
+        cells = [f"{row[name]['mean']:.3g} ± {row[name]['stderr']:.2g}" for name in LEVEL_FIGURES]
         print(f"| {row['level']} | " + " | ".join(cells) + " |")
     cover, area = report["coverage_cells"], report["volume_x_success"]
     print(f"coverage ({COVERAGE_SKILLS} greedy top-level skills from the initial state, 1 m cells of goal space): "

@@ -62,16 +62,29 @@ def mean_and_stderr(values: Sequence[float]) -> dict[str, float]:
     return {"mean": float(x.mean()), "std": std, "stderr": std / math.sqrt(x.size), "count": int(x.size)}
 
 
+LEVEL_FIGURES = ("volume", "success", "final_distance", "success_from_initial", "success_chained", "cut_short")
+"""What :func:`aggregate_runs` averages per level (see :func:`level_figures`)."""
+
+
+def level_figures(level: dict) -> dict[str, float]:
+    """One level's evaluation (see ``run.evaluate.phase1_figures``) as flat figures: volume,
+    success and final distance from its start buffer, success from the initial state only and
+    from chained start states only, and the fraction of episodes a reset (a flip) cut short."""
+    return {"volume": level["volume"], "success": level["success"], "final_distance": level["final_distance"],
+            "success_from_initial": level["from_initial"]["success"], "success_chained": level["chained"]["success"],
+            "cut_short": level["cut_short"]}
+
+
 def aggregate_runs(reports: Sequence[dict]) -> list[dict]:
-    """Mean and standard error over runs (seeds) of each level's volume, success and final distance."""
+    """Mean and standard error over runs (seeds) of each level's :data:`LEVEL_FIGURES`."""
     if not reports:
         raise ValueError("aggregate_runs needs at least one report")
     k = len(reports[0]["levels"])
     if any(len(r["levels"]) != k for r in reports):
         raise ValueError("runs to aggregate must have the same number of levels")
+    figures = [[level_figures(level) for level in r["levels"]] for r in reports]
     return [
-        {"level": level, **{name: mean_and_stderr([r["levels"][level][name] for r in reports])
-                            for name in ("volume", "success", "final_distance")}}
+        {"level": level, **{name: mean_and_stderr([f[level][name] for f in figures]) for name in LEVEL_FIGURES}}
         for level in range(k)
     ]
 

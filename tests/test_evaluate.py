@@ -92,12 +92,17 @@ def test_goal_space_growth_plot_is_a_png_image(tmp_path):
 
 def test_runs_aggregate_per_level_and_must_have_the_same_depth():
     def run(volumes, success):
-        return {"levels": [{"volume": v, "success": success, "final_distance": 0.1} for v in volumes]}
+        return {"levels": [{"volume": v, "success": success, "final_distance": 0.1, "cut_short": 1 - success,
+                            "from_initial": {"success": success / 2}, "chained": {"success": success / 4}}
+                           for v in volumes]}
 
     rows = aggregate_runs([run([1.0, 10.0], 0.9), run([3.0, 30.0], 0.7)])
     assert [row["volume"]["mean"] for row in rows] == [2.0, 20.0]
     assert rows[1]["volume"]["stderr"] == pytest.approx(10.0)  # std 14.14 / sqrt(2)
     assert rows[0]["success"]["mean"] == pytest.approx(0.8)
+    assert rows[0]["success_from_initial"]["mean"] == pytest.approx(0.4)
+    assert rows[0]["success_chained"]["mean"] == pytest.approx(0.2)
+    assert rows[1]["cut_short"]["mean"] == pytest.approx(0.2)
     with pytest.raises(ValueError, match="same number of levels"):
         aggregate_runs([run([1.0], 0.9), run([1.0, 2.0], 0.9)])
 

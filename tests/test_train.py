@@ -12,7 +12,16 @@ import pytest
 from tiny import TINY, tiny_after_two_epochs, tiny_trainer
 
 from mjx_emp import gce
-from mjx_emp.algos.he.agent import MODE_EVAL, MODE_GC, MODE_GS, MODE_STARTS, TRAIN_EPOCH_TRACE, Trainer, epoch_schedule
+from mjx_emp.algos.he.agent import (
+    MODE_EVAL,
+    MODE_GC,
+    MODE_GS,
+    MODE_STARTS,
+    TRAIN_EPOCH_TRACE,
+    Trainer,
+    epoch_schedule,
+    start_subset,
+)
 from mjx_emp.algos.he.config import TrainConfig
 from mjx_emp.envs.env import make_env
 from mjx_emp.errors import ConfigError
@@ -28,7 +37,7 @@ from mjx_emp.learners.ddpg import (
 )
 from mjx_emp.learners.goal_space import GoalSpaceSample
 from mjx_emp.nets import greedy_batch
-from mjx_emp.replay import replay_insert
+from mjx_emp.replay import replay_init, replay_insert
 from mjx_emp.tracing import traces
 
 
@@ -469,3 +478,17 @@ def test_stored_rows_link_to_the_next_row_of_their_episode():
         np.testing.assert_array_equal(data.obs[nxt], data.next_obs[linked])  # the episode goes on from s'
         np.testing.assert_array_equal(data.goal[nxt], data.goal[linked])
         assert not np.asarray(data.reached[linked]).any()  # a reached goal ends its episode
+
+
+def test_start_subsets_split_the_buffer_at_the_initial_state():
+    initial = jnp.array([1.0, 2.0])
+    buffer = replay_insert(replay_init(initial, 8), jnp.array([[1.0, 2.0], [3.0, 4.0], [1.0, 2.0], [5.0, 6.0]]),
+                           jnp.ones(4, bool))
+    assert start_subset(buffer, initial, "buffer") is buffer
+    only_initial = start_subset(buffer, initial, "initial")
+    assert int(only_initial.size) == 2 and np.all(np.asarray(only_initial.data[:2]) == [1.0, 2.0])
+    chained = start_subset(buffer, initial, "chained")
+    assert int(chained.size) == 2
+    np.testing.assert_array_equal(chained.data[:2], [[3.0, 4.0], [5.0, 6.0]])
+    empty_chain = start_subset(replay_insert(replay_init(initial, 8), initial[None], jnp.ones(1, bool)), initial, "chained")
+    assert int(empty_chain.size) == 1 and np.all(np.asarray(empty_chain.data[0]) == [1.0, 2.0])

@@ -24,7 +24,8 @@ from mjx_emp.rollout.hierarchy import EpisodeEnd, Hierarchy, RolloutState, Rollo
 class CollectTotals:
     """Running sums over a collect call: primitive steps (int32, exact: one call is far below
     2^31 steps), transitions kept, first episodes, how many of those reached their goal, the
-    sum of their distances to goal, flip resets."""
+    sum of their distances to goal, flip resets, and how many first episodes a reset cut
+    short (a flipped Ant or broken physics)."""
 
     env_steps: jax.Array
     transitions: jax.Array
@@ -32,16 +33,19 @@ class CollectTotals:
     reached: jax.Array
     distance: jax.Array
     flip_resets: jax.Array
+    cut_short: jax.Array
 
     @classmethod
     def zero(cls) -> CollectTotals:
         return cls(env_steps=jnp.int32(0), transitions=jnp.int32(0), episodes=jnp.int32(0), reached=jnp.int32(0),
-                   distance=jnp.zeros((), jnp.float32), flip_resets=jnp.int32(0))
+                   distance=jnp.zeros((), jnp.float32), flip_resets=jnp.int32(0), cut_short=jnp.int32(0))
 
     def add(self, stats: RolloutStats, transitions: jax.Array, first_episode: jax.Array,
-            reached: jax.Array, distance: jax.Array) -> CollectTotals:
+            reached: jax.Array, distance: jax.Array, cut: jax.Array | None = None) -> CollectTotals:
         """These totals plus one chunk: its stats, kept-transition mask, first-episode mask
-        (with per-row reached flags and distances, counted only where first_episode)."""
+        (with per-row reached flags, distances and cut-short flags, counted only where
+        first_episode)."""
+        cut = jnp.zeros_like(first_episode) if cut is None else cut
         return CollectTotals(
             env_steps=self.env_steps + stats.primitive_steps,
             transitions=self.transitions + transitions.sum(),
@@ -49,11 +53,16 @@ class CollectTotals:
             reached=self.reached + (first_episode & reached).sum(),
             distance=self.distance + jnp.where(first_episode, distance, 0.0).sum(),
             flip_resets=self.flip_resets + stats.flip_resets,
+            cut_short=self.cut_short + (first_episode & cut).sum(),
         )
 
     def success(self) -> jax.Array:
         """Fraction of first episodes that reached their goal (0 when none ended)."""
         return self.reached / jnp.maximum(self.episodes, 1)
+
+    def cut_fraction(self) -> jax.Array:
+        """Fraction of first episodes a reset cut short (0 when none ended)."""
+        return self.cut_short / jnp.maximum(self.episodes, 1)
 
     def mean_distance(self) -> jax.Array:
         """Mean distance to goal over first episodes (0 when none ended)."""

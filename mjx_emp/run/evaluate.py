@@ -17,16 +17,23 @@ def phase1_figures(trainer, state, key, episodes: int) -> dict:
     """Per level: the goal-space box at the initial state and greedy goal-conditioned results;
     for the agent: METRA's coverage and the top box's volume times its greedy success.
 
-    Goals come from each level's own (noise-free) goal space, episodes start from its
-    start-state buffer; at least ``episodes`` episodes per level (whole rounds of
+    Goals come from each level's own (noise-free) goal space at the episode's start;
+    episodes start from the level's start-state buffer (``success``, ``final_distance``,
+    ``cut_short``: the fraction a reset cut short, for the Ant a flip), and again from the
+    initial state only (``from_initial``) and from the buffer's states that chaining
+    reached only (``chained``); at least ``episodes`` episodes each (whole rounds of
     ``num_envs``). Coverage counts the 1 m cells of goal space visited by
     :data:`COVERAGE_SKILLS` greedy top-level skills from the initial state.
     """
     rounds = max(1, math.ceil(episodes / trainer.cfg.num_envs))
     levels = []
     for level, box in enumerate(trainer.goal_spaces(state)):
-        result = trainer.evaluate(state, level, jax.random.fold_in(key, level), rounds)
-        levels.append({"level": level, **box, **result, "episodes": rounds * trainer.cfg.num_envs})
+        level_key = jax.random.fold_in(key, level)
+        result = trainer.evaluate(state, level, level_key, rounds)
+        by_start = {starts: trainer.evaluate(state, level, jax.random.fold_in(level_key, i + 1), rounds, starts)
+                    for i, starts in enumerate(("initial", "chained"))}
+        levels.append({"level": level, **box, **result, "episodes": rounds * trainer.cfg.num_envs,
+                       "from_initial": by_start["initial"], "chained": by_start["chained"]})
     paths = trainer.skill_paths(state, jax.random.fold_in(key, len(levels)), COVERAGE_SKILLS)
     top = levels[-1]
     return {"epoch": int(state.epoch), "env_steps": float(state.env_steps.value()), "levels": levels,

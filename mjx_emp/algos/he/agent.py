@@ -80,6 +80,10 @@ from mjx_emp.rollout.hierarchy import (
 from mjx_emp.shards import ShardAxes, mean_gradients, shard_mean, shard_sum
 from mjx_emp.tracing import count_trace
 
+EVAL_STARTS = ("buffer", "initial", "chained")
+"""Where :meth:`Trainer.evaluate` starts its episodes: the level's start-state buffer (states
+the greedy skill chain began a skill in, the initial state among them), only the initial
+state, or only the buffer's other states (those chaining reached)."""
 TRAIN_EPOCH_TRACE = "he.train_epoch"
 """Name under which :mod:`mjx_emp.tracing` counts traces (compiles) of the phase-1 epoch."""
 # What a schedule item does.
@@ -145,6 +149,22 @@ def epoch_schedule(cfg: TrainConfig) -> np.ndarray:
         items += [(level, MODE_GS)] * cfg.gs_iterations
         items += [(level, MODE_EVAL)] * cfg.eval_iterations
     return np.asarray(items, np.int32)
+
+
+def start_subset(buffer: ReplayBuffer, initial: jax.Array, starts: str) -> ReplayBuffer:
+    """The start states of ``buffer`` that ``starts`` (one of :data:`EVAL_STARTS`) names, as a buffer.
+
+    "buffer" keeps it whole; "initial" keeps only the initial state; "chained" only the
+    other rows. A selection with no row (no chain has run yet) falls back to the initial state.
+    """
+    if starts == "buffer":
+        return buffer
+    filled = jnp.arange(buffer.capacity) < buffer.size
+    at_initial = jnp.all(buffer.data == initial, axis=-1)
+    keep = filled & (at_initial if starts == "initial" else ~at_initial)
+    chosen = replay_insert(replay_init(initial, buffer.capacity), buffer.data, keep)
+    fallback = replay_insert(replay_init(initial, buffer.capacity), initial[None], jnp.ones(1, bool))
+    return jax.tree.map(lambda a, b: jnp.where(chosen.size > 0, a, b), chosen, fallback)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -381,7 +401,7 @@ class Trainer:
                 axis=-1,
             )
             root_valid = jnp.stack([t.valid for t in transitions])[root]
-            totals = totals.add(stats, root_valid, first_episode, episodes.reached, distance)
+            totals = totals.add(stats, root_valid, first_episode, episodes.reached, distance, episodes.cut)
             return (replay, goal_space_replay, starts, last), totals
 
         replay, goal_space_replay = state.replay, state.goal_space_replay
@@ -530,22 +550,31 @@ class Trainer:
         """One curriculum epoch as one jitted call; returns per-schedule-item stats."""
         return _jit_train_epoch(self, state)
 
-    def evaluate(self, state: TrainState, level: int, key: jax.Array, rounds: int = 4) -> dict[str, float]:
-        """Greedy skills at ``level`` on goals drawn from its own (noise-free) goal space.
+    def evaluate(self, state: TrainState, level: int, key: jax.Array, rounds: int = 4,
+                 starts: str = "buffer") -> dict[str, float]:
+        """Greedy skills at ``level`` on goals drawn from its own (noise-free) goal space at their start.
 
-        ``rounds`` x num_envs episodes start from the level's start buffer; returns the
-        fraction that ended within eps of their goal and the mean final distance.
+        ``rounds`` x num_envs episodes start from the states ``starts`` names (see
+        :data:`EVAL_STARTS`: the level's start buffer, only the initial state, or only the
+        buffer's states that chaining reached); returns the fraction that ended within eps
+        of their goal, the mean final distance, and the fraction a reset cut short (for
+        the Ant: it flipped).
         """
-        reached, distance = _jit_evaluate(self, state, jnp.int32(level), key, rounds)
-        return {"success": float(reached), "final_distance": float(distance)}
+        if starts not in EVAL_STARTS:
+            raise ValueError(f"starts: {starts!r} is unknown; allowed values: {list(EVAL_STARTS)}")
+        reached, distance, cut = _jit_evaluate(self, state, jnp.int32(level), key, rounds, starts)
+        return {"success": float(reached), "final_distance": float(distance), "cut_short": float(cut)}
 
-    def _evaluate(self, state: TrainState, level: jax.Array, key: jax.Array, rounds: int):
+    def _evaluate(self, state: TrainState, level: jax.Array, key: jax.Array, rounds: int, starts: str):
+        initial = jnp.asarray(self.initial_obs)
+        state = state.replace(starts=tuple(start_subset(buffer, initial, starts) for buffer in state.starts))
+
         def one(_, round_key):
             _, totals = self._collect(state, level, jnp.int32(MODE_EVAL), round_key)
-            return None, (totals.success(), totals.mean_distance())
+            return None, (totals.success(), totals.mean_distance(), totals.cut_fraction())
 
-        _, (reached, distance) = jax.lax.scan(one, None, jax.random.split(key, rounds))
-        return reached.mean(), distance.mean()
+        _, (reached, distance, cut) = jax.lax.scan(one, None, jax.random.split(key, rounds))
+        return reached.mean(), distance.mean(), cut.mean()
 
     def skill_paths(self, state: TrainState, key: jax.Array, skills: int = 48) -> tuple[np.ndarray, np.ndarray]:
         """h(s) along ``skills`` greedy top-level skills from the initial state.
@@ -669,7 +698,7 @@ class Trainer:
 
 _jit_init = jax.jit(Trainer._init, static_argnums=0)
 _jit_train_epoch = jax.jit(Trainer._train_epoch, static_argnums=0, donate_argnums=1)
-_jit_evaluate = jax.jit(Trainer._evaluate, static_argnums=(0, 4))
+_jit_evaluate = jax.jit(Trainer._evaluate, static_argnums=(0, 4, 5))
 _jit_skill_paths = jax.jit(Trainer._skill_paths, static_argnums=(0, 3))
 
 
