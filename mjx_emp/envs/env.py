@@ -25,7 +25,7 @@ import numpy as np
 from flax import struct
 
 from mjx_emp.envs.mjx_quiet import mjx
-from mjx_emp.envs.registry import DOMAINS, DomainSpec
+from mjx_emp.envs.registry import DOMAINS, DomainSpec, check_physics
 from mjx_emp.errors import ConfigError
 
 MODELS_DIR = Path(__file__).resolve().parents[2] / "models"
@@ -325,13 +325,20 @@ def _make_cage(m: mujoco.MjModel, spec: DomainSpec) -> Cage:
     )
 
 
+_INTEGRATOR_ENUMS = {"model": None, "euler": mujoco.mjtIntegrator.mjINT_EULER,
+                     "implicitfast": mujoco.mjtIntegrator.mjINT_IMPLICITFAST, "rk4": mujoco.mjtIntegrator.mjINT_RK4}
+
+
 @functools.cache
-def make_env(name: str, heading_frame: bool = False) -> Env:
+def make_env(name: str, heading_frame: bool = False, solver_iterations: int = 0, integrator: str = "model") -> Env:
     """Build a domain by name (see :data:`DOMAINS`); cached so every caller shares one Env.
 
     ``heading_frame`` (robots with a free torso only) shows networks the state and goal
-    in the torso's heading frame (:attr:`Env.heading_frame`).
+    in the torso's heading frame (:attr:`Env.heading_frame`). ``solver_iterations`` (0:
+    the model's) and ``integrator`` (one of ``registry.INTEGRATORS``) replace the MJCF's
+    solver settings: the robots' files keep the paper's cheap ones (1 iteration, Euler).
     """
+    check_physics(solver_iterations, integrator)
     if name not in DOMAINS:
         raise ConfigError(f"env name {name!r} is unknown; allowed values: {sorted(DOMAINS)}")
     spec = DOMAINS[name]
@@ -339,6 +346,10 @@ def make_env(name: str, heading_frame: bool = False) -> Env:
         raise ConfigError(f"heading_frame: {name!r} has no free torso to take a heading from; "
                           f"allowed only for {sorted(n for n, d in DOMAINS.items() if d.torso_quat is not None)}")
     m = mujoco.MjModel.from_xml_path(str(MODELS_DIR / spec.xml))
+    if solver_iterations:
+        m.opt.iterations = solver_iterations
+    if _INTEGRATOR_ENUMS[integrator] is not None:
+        m.opt.integrator = _INTEGRATOR_ENUMS[integrator]
     d = mujoco.MjData(m)
     d.qpos[:] = _home_qpos(m)
     mujoco.mj_forward(m, d)

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import dataclasses
 
+from mjx_emp.errors import ConfigError
+
 
 @dataclasses.dataclass(frozen=True)
 class DomainSpec:
@@ -45,3 +47,15 @@ DOMAINS: dict[str, DomainSpec] = {
     ),
 }
 DOMAIN_NAMES: tuple[str, ...] = tuple(DOMAINS)
+
+
+INTEGRATORS = ("model", "euler", "implicitfast", "rk4")
+"""Integrators a config may ask for; "model" keeps the MJCF file's (Euler in every domain)."""
+
+
+def check_physics(solver_iterations: int, integrator: str) -> None:
+    """Raise ConfigError naming the field if the physics overrides are not allowed values."""
+    if integrator not in INTEGRATORS:
+        raise ConfigError(f"integrator: {integrator!r} is unknown; allowed values: {list(INTEGRATORS)}")
+    if solver_iterations < 0:
+        raise ConfigError(f"solver_iterations: must be >= 0 (0 keeps the model's); got {solver_iterations}")

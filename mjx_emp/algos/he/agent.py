@@ -184,7 +184,7 @@ class Trainer:
 
     def __post_init__(self):
         (check_gcrl_config if isinstance(self.cfg, GcrlConfig) else check_train_config)(self.cfg)
-        env = make_env(self.cfg.env, self.cfg.heading_frame)
+        env = make_env(self.cfg.env, self.cfg.heading_frame, self.cfg.solver_iterations, self.cfg.integrator)
         object.__setattr__(self, "env", env)
         policies = tuple(
             level_policy(env, self.actor_net(level), primitive_box if level == 0 else self.learned_box(level - 1))

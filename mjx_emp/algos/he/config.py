@@ -8,7 +8,7 @@ from __future__ import annotations
 import dataclasses
 
 from mjx_emp.checks import check_capacity, check_counts, check_finite, check_learning, check_levels, check_shards
-from mjx_emp.envs.registry import DOMAINS
+from mjx_emp.envs.registry import DOMAINS, check_physics
 from mjx_emp.errors import ConfigError
 
 
@@ -28,6 +28,12 @@ class TrainConfig:
     only; see Env.heading_frame). False is the paper's world-frame input, and what every
     preset uses: on ant-field-cpu-k1 seed 0 heading-frame inputs gave a 4.5 m^2 box at 55 %
     against 10.6 m^2 at 72 % (docs/learning-on-robots.md)."""
+    solver_iterations: int = 0
+    """Constraint-solver iterations of the physics; 0 keeps the model file's (the robots': 1,
+    the paper's Brax settings)."""
+    integrator: str = "model"
+    """Integrator of the physics: model (the file's; Euler for every domain), euler,
+    implicitfast or rk4."""
     n: tuple[int, ...] = (10,)
     """Maximum number of actions per level (the paper's n), bottom level first."""
     sigma_gc: tuple[float, ...] = (0.2,)
@@ -147,6 +153,7 @@ def check_train_config(cfg: TrainConfig, positive: tuple[str, ...] = _POSITIVE) 
     if cfg.heading_frame and DOMAINS[cfg.env].torso_quat is None:
         allowed = sorted(name for name, spec in DOMAINS.items() if spec.torso_quat is not None)
         raise ConfigError(f"heading_frame: {cfg.env!r} has no free torso; allowed only with env in {allowed}")
+    check_physics(cfg.solver_iterations, cfg.integrator)
     check_levels(cfg.n, cfg.eps)
     check_shards(cfg, SHARD_SPLIT)
     for name in _PER_LEVEL:

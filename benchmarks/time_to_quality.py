@@ -1,0 +1,116 @@
+"""Time to quality on a small machine: env steps and wall-clock minutes until a preset's top
+box first holds a target volume at a target greedy success.
+
+For each (preset, seed), trains in this process epoch by epoch (``Trainer.train_epoch``,
+compile included; no checkpoints are written, which `mjx-emp train` would add) and after
+every epoch reads the run's curve as ``experiments/equal_steps.py`` does: the top box's
+volume at that epoch and its greedy success averaged over the last ``--window`` epochs'
+evaluations (one epoch's goals are too few to read alone). At the first epoch where both
+meet the target it confirms with the 400-goal evaluation of `mjx-emp eval` on that state;
+a confirmation that fails is recorded and training goes on. The row gives the env steps
+and wall seconds (training only, compile included; the confirmations' time is excluded
+and reported apart) of the first confirmed epoch, or ``reached: false`` with the run's
+best smoothed point if the budget (``--max-env-steps``) ends first. Run it alone: timings
+shared with another job are not the figure. ``python benchmarks/time_to_quality.py
+--presets ant-field-cpu-k1 --seeds 0``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import platform
+import time
+from pathlib import Path
+
+import jax
+import tyro
+
+from mjx_emp.algos.he.agent import Trainer
+from mjx_emp.algos.registry import all_presets
+from mjx_emp.run.evaluate import phase1_figures
+
+
+@dataclasses.dataclass
+class Args:
+    """Env steps and minutes until a target box at a target success."""
+
+    presets: tuple[str, ...] = ("ant-field-cpu-k1",)
+    seeds: tuple[int, ...] = (0,)
+    target_volume: float = 16.0
+    """Top box volume to reach (m^2 on the Ant, m on the Half Cheetah)."""
+    target_success: float = 0.8
+    window: int = 11
+    """Epochs whose per-epoch greedy success is averaged (the trailing window)."""
+    max_env_steps: float = 2.0e6
+    episodes: int = 400
+    """Greedy goals of the confirming evaluation."""
+    out: str = ""
+    """JSON output path; empty means benchmarks/results/time_to_quality_<backend>.json."""
+
+
+def smoothed(curve: list[tuple[float, float]], window: int) -> float:
+    """Mean success of the last ``window`` points of a (volume, success) curve."""
+    recent = curve[-window:]
+    return sum(success for _, success in recent) / len(recent)
+
+
+def time_to_quality(preset: str, seed: int, args: Args) -> dict:
+    """One row: when (env steps, wall seconds) PRESET's seed SEED first met the target, confirmed."""
+    cfg = dataclasses.replace(all_presets()[preset][1], seed=seed)
+    trainer = Trainer(cfg)
+    start = time.perf_counter()
+    state = trainer.init()
+    curve: list[tuple[float, float]] = []
+    checks, confirm_seconds, best = [], 0.0, None
+    while True:
+        state, stats = trainer.train_epoch(state)
+        top = trainer.metrics(state, stats, 0.0)["levels"][-1]
+        curve.append((top["volume"], top["success"]))
+        steps = float(state.env_steps.value())
+        wall = time.perf_counter() - start - confirm_seconds
+        success = smoothed(curve, args.window)
+        if len(curve) >= args.window and (best is None or top["volume"] * success > best["volume_x_success"]):
+            best = {"epoch": int(state.epoch), "env_steps": steps, "volume": top["volume"], "success": success,
+                    "volume_x_success": top["volume"] * success}
+        if len(curve) >= args.window and top["volume"] >= args.target_volume and success >= args.target_success:
+            began = time.perf_counter()
+            figures = phase1_figures(trainer, state, jax.random.key(1000 + seed), args.episodes)
+            confirm_seconds += time.perf_counter() - began
+            level = figures["levels"][-1]
+            confirmed = level["volume"] >= args.target_volume and level["success"] >= args.target_success
+            checks.append({"epoch": int(state.epoch), "env_steps": steps, "wall_s": wall, "smoothed_success": success,
+                           "volume": level["volume"], "success": level["success"], "confirmed": confirmed})
+            print(json.dumps(checks[-1]), flush=True)
+            if confirmed:
+                return {"preset": preset, "seed": seed, "reached": True, "env_steps": steps, "wall_s": wall,
+                        "wall_min": wall / 60, "epoch": int(state.epoch), "checks": checks,
+                        "confirm_seconds": confirm_seconds, "config": dataclasses.asdict(cfg)}
+        if steps >= args.max_env_steps or int(state.epoch) >= cfg.epochs:
+            return {"preset": preset, "seed": seed, "reached": False, "env_steps": steps, "wall_s": wall,
+                    "wall_min": wall / 60, "epoch": int(state.epoch), "best": best, "checks": checks,
+                    "confirm_seconds": confirm_seconds, "config": dataclasses.asdict(cfg)}
+
+
+def main(args: Args) -> None:
+    presets = all_presets()
+    out = Path(args.out or f"benchmarks/results/time_to_quality_{jax.default_backend()}.json")
+    rows = json.loads(out.read_text())["rows"] if out.exists() else []
+    for preset in args.presets:
+        if preset not in presets:
+            raise SystemExit(f"presets: {preset!r} is unknown; allowed values: {sorted(presets)}")
+        for seed in args.seeds:
+            row = time_to_quality(preset, seed, args)
+            row["target"] = {"volume": args.target_volume, "success": args.target_success, "window": args.window}
+            print(json.dumps({k: v for k, v in row.items() if k != "config"}), flush=True)
+            rows = [r for r in rows if (r["preset"], r["seed"]) != (preset, seed)] + [row]
+            out.parent.mkdir(parents=True, exist_ok=True)
+            out.write_text(json.dumps({"backend": jax.default_backend(), "machine": platform.processor() or
+                                       platform.machine(), "cpus": os.cpu_count(), "rows": rows},
+                                      indent=1))
+    print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+    main(tyro.cli(Args))
