@@ -10,7 +10,7 @@ meet the target it confirms with the 400-goal evaluation of `mjx-emp eval` on th
 a confirmation that fails is recorded and training goes on. The row gives the env steps
 and wall seconds (training only, compile included; the confirmations' time is excluded
 and reported apart) of the first confirmed epoch, or ``reached: false`` with the run's
-best smoothed point if the budget (``--max-env-steps``) ends first. Run it alone: timings
+best smoothed point if the budget (``--max-env-steps``, ``--max-minutes``) ends first. Run it alone: timings
 shared with another job are not the figure. ``python benchmarks/time_to_quality.py
 --presets ant-field-cpu-k1 --seeds 0``.
 """
@@ -44,6 +44,9 @@ class Args:
     window: int = 11
     """Epochs whose per-epoch greedy success is averaged (the trailing window)."""
     max_env_steps: float = 2.0e6
+    max_minutes: float = 0.0
+    """Also stop once training has taken this many minutes (0: no limit); a target asked
+    for within N minutes needs no longer run."""
     episodes: int = 400
     """Greedy goals of the confirming evaluation."""
     out: str = ""
@@ -87,7 +90,8 @@ def time_to_quality(preset: str, seed: int, args: Args) -> dict:
                 return {"preset": preset, "seed": seed, "reached": True, "env_steps": steps, "wall_s": wall,
                         "wall_min": wall / 60, "epoch": int(state.epoch), "checks": checks,
                         "confirm_seconds": confirm_seconds, "config": dataclasses.asdict(cfg)}
-        if steps >= args.max_env_steps or int(state.epoch) >= cfg.epochs:
+        out_of_time = args.max_minutes > 0 and wall >= 60 * args.max_minutes
+        if steps >= args.max_env_steps or int(state.epoch) >= cfg.epochs or out_of_time:
             return {"preset": preset, "seed": seed, "reached": False, "env_steps": steps, "wall_s": wall,
                     "wall_min": wall / 60, "epoch": int(state.epoch), "best": best, "checks": checks,
                     "confirm_seconds": confirm_seconds, "config": dataclasses.asdict(cfg)}

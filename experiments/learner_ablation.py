@@ -60,6 +60,8 @@ class Args:
     base: str = "runs/learner_ablation"
     episodes: int = 400
     out: str = "benchmarks/results/learner_ablation_cpu.json"
+    report_only: bool = False
+    """Train nothing: print the table of the rows in ``--out``."""
 
 
 def variant_config(variant: str, setting: str, seed: int, env_steps: float | None) -> TrainConfig:
@@ -75,9 +77,25 @@ def variant_config(variant: str, setting: str, seed: int, env_steps: float | Non
     return config
 
 
+def table(rows: list[dict]) -> str:
+    """The README's Markdown table of ablation rows: per setting and variant, sorted by budget."""
+    lines = ["| setting | variant | options | seed | env steps | wall s | top box (m²) | success | "
+             "success from s0 | success from chained starts | flipped | coverage cells |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in sorted(rows, key=lambda r: (r["setting"], r["env_steps"], r["variant"], r["seed"])):
+        top = r["levels"][-1]
+        options = ", ".join(f"{k}={v}" for k, v in LEARNER_OPTIONS.get(r["variant"], {}).items()) or "(the preset's)"
+        by_start = [f"{top[s]['success']:.2f}" if s in top else "-" for s in ("from_initial", "chained")]
+        flipped = f"{top['cut_short']:.3f}" if "cut_short" in top else "-"
+        lines.append(f"| {r['setting']} | {r['variant']} | {options} | {r['seed']} | {r['env_steps'] / 1e6:.2f} M | "
+                     f"{r['wall_s']:.0f} | {r['top_area']:.1f} | {r['success']:.2f} | {' | '.join(by_start)} | "
+                     f"{flipped} | {r['coverage_cells']} |")
+    return "\n".join(lines)
+
+
 def main(args: Args) -> None:
     out = Path(args.out)
-    for variant in args.variants:
+    for variant in [] if args.report_only else args.variants:
         for seed in args.seeds:
             config = variant_config(variant, args.setting, seed, args.env_steps)
             run_dir = Path(args.base) / f"{args.setting}-{variant}-s{seed}"
@@ -90,6 +108,7 @@ def main(args: Args) -> None:
                    "config": dataclasses.asdict(config)}
             print(json.dumps({k: v for k, v in row.items() if k not in ("levels", "curve", "config")}), flush=True)
             merge_row(out, row, key=("variant", "setting", "seed", "env_steps"))
+    print(table(json.loads(out.read_text())["rows"]))
     print(f"wrote {out}")
 
 

@@ -6,8 +6,10 @@ import mujoco
 import numpy as np
 import pytest
 
+from mjx_emp.algos.he.config import TrainConfig, check_train_config
 from mjx_emp.envs.env import make_env
 from mjx_emp.envs.registry import DOMAINS
+from mjx_emp.errors import ConfigError
 
 
 def torso_position(env, state) -> np.ndarray:
@@ -207,3 +209,16 @@ def test_the_cage_latch_ignores_presses_outside_the_button_and_stays_open_once_o
     for _ in range(3):
         moved = step(moved, jnp.zeros(env.action_size))
     assert bool(env.cage_open(moved)) and float(env.observe(moved)[-1]) == 1.0
+
+
+def test_physics_overrides_reach_the_model_and_bad_ones_name_their_field():
+    env = make_env("point_mass", False, 7, "rk4")
+    assert env.mj_model.opt.iterations == 7 and int(env.model.opt.iterations) == 7
+    assert env.mj_model.opt.integrator == mujoco.mjtIntegrator.mjINT_RK4
+    default = make_env("point_mass")
+    assert default.mj_model.opt.integrator == mujoco.mjtIntegrator.mjINT_EULER
+    assert default.mj_model.opt.iterations != 7
+    with pytest.raises(ConfigError, match="integrator: 'verlet' is unknown"):
+        make_env("point_mass", False, 0, "verlet")
+    with pytest.raises(ConfigError, match="solver_iterations: must be >= 0"):
+        check_train_config(TrainConfig(solver_iterations=-1))

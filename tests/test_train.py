@@ -484,11 +484,12 @@ def test_start_subsets_split_the_buffer_at_the_initial_state():
     initial = jnp.array([1.0, 2.0])
     buffer = replay_insert(replay_init(initial, 8), jnp.array([[1.0, 2.0], [3.0, 4.0], [1.0, 2.0], [5.0, 6.0]]),
                            jnp.ones(4, bool))
-    assert start_subset(buffer, initial, "buffer") is buffer
-    only_initial = start_subset(buffer, initial, "initial")
+    whole = start_subset(buffer, initial, 0)
+    assert int(whole.size) == 4 and np.array_equal(whole.data, buffer.data)
+    only_initial = start_subset(buffer, initial, 1)
     assert int(only_initial.size) == 2 and np.all(np.asarray(only_initial.data[:2]) == [1.0, 2.0])
-    chained = start_subset(buffer, initial, "chained")
+    chained = start_subset(buffer, initial, 2)
     assert int(chained.size) == 2
     np.testing.assert_array_equal(chained.data[:2], [[3.0, 4.0], [5.0, 6.0]])
-    empty_chain = start_subset(replay_insert(replay_init(initial, 8), initial[None], jnp.ones(1, bool)), initial, "chained")
+    empty_chain = start_subset(replay_insert(replay_init(initial, 8), initial[None], jnp.ones(1, bool)), initial, 2)
     assert int(empty_chain.size) == 1 and np.all(np.asarray(empty_chain.data[0]) == [1.0, 2.0])

@@ -151,20 +151,21 @@ def epoch_schedule(cfg: TrainConfig) -> np.ndarray:
     return np.asarray(items, np.int32)
 
 
-def start_subset(buffer: ReplayBuffer, initial: jax.Array, starts: str) -> ReplayBuffer:
-    """The start states of ``buffer`` that ``starts`` (one of :data:`EVAL_STARTS`) names, as a buffer.
+def start_subset(buffer: ReplayBuffer, initial: jax.Array, starts: jax.Array | int) -> ReplayBuffer:
+    """The start states of ``buffer`` that ``starts`` (an index into :data:`EVAL_STARTS`, may be
+    traced) names, as a buffer.
 
-    "buffer" keeps it whole; "initial" keeps only the initial state; "chained" only the
-    other rows. A selection with no row (no chain has run yet) falls back to the initial state.
+    0 ("buffer") keeps it whole; 1 ("initial") keeps only the initial state; 2 ("chained")
+    only the other rows. A selection with no row (no chain has run yet) falls back to the
+    initial state.
     """
-    if starts == "buffer":
-        return buffer
     filled = jnp.arange(buffer.capacity) < buffer.size
     at_initial = jnp.all(buffer.data == initial, axis=-1)
-    keep = filled & (at_initial if starts == "initial" else ~at_initial)
+    keep = filled & jnp.where(starts == 1, at_initial, ~at_initial)
     chosen = replay_insert(replay_init(initial, buffer.capacity), buffer.data, keep)
     fallback = replay_insert(replay_init(initial, buffer.capacity), initial[None], jnp.ones(1, bool))
-    return jax.tree.map(lambda a, b: jnp.where(chosen.size > 0, a, b), chosen, fallback)
+    subset = jax.tree.map(lambda a, b: jnp.where(chosen.size > 0, a, b), chosen, fallback)
+    return jax.tree.map(lambda a, b: jnp.where(starts == 0, a, b), buffer, subset)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -562,10 +563,11 @@ class Trainer:
         """
         if starts not in EVAL_STARTS:
             raise ValueError(f"starts: {starts!r} is unknown; allowed values: {list(EVAL_STARTS)}")
-        reached, distance, cut = _jit_evaluate(self, state, jnp.int32(level), key, rounds, starts)
+        which = jnp.int32(EVAL_STARTS.index(starts))
+        reached, distance, cut = _jit_evaluate(self, state, jnp.int32(level), key, rounds, which)
         return {"success": float(reached), "final_distance": float(distance), "cut_short": float(cut)}
 
-    def _evaluate(self, state: TrainState, level: jax.Array, key: jax.Array, rounds: int, starts: str):
+    def _evaluate(self, state: TrainState, level: jax.Array, key: jax.Array, rounds: int, starts: jax.Array):
         initial = jnp.asarray(self.initial_obs)
         state = state.replace(starts=tuple(start_subset(buffer, initial, starts) for buffer in state.starts))
 
@@ -698,7 +700,7 @@ class Trainer:
 
 _jit_init = jax.jit(Trainer._init, static_argnums=0)
 _jit_train_epoch = jax.jit(Trainer._train_epoch, static_argnums=0, donate_argnums=1)
-_jit_evaluate = jax.jit(Trainer._evaluate, static_argnums=(0, 4, 5))
+_jit_evaluate = jax.jit(Trainer._evaluate, static_argnums=(0, 4))
 _jit_skill_paths = jax.jit(Trainer._skill_paths, static_argnums=(0, 3))
 
 
