@@ -104,8 +104,7 @@ def main(args: Args) -> None:
             else:
                 run.train(TrainExperiment(config=config, run_dir=str(run_dir)))
             row = {"variant": variant, "setting": args.setting,
-                   **evaluate_run(run_dir, "ant-field-cpu-k1", seed, args.episodes),
-                   "config": dataclasses.asdict(config)}
+                   **evaluate_run(run_dir, "ant-field-cpu-k1", seed, args.episodes)}
             print(json.dumps({k: v for k, v in row.items() if k not in ("levels", "curve", "config")}), flush=True)
             merge_row(out, row, key=("variant", "setting", "seed", "env_steps"))
     print(table(json.loads(out.read_text())["rows"]))

@@ -72,6 +72,7 @@ def evaluate_run(run_dir: Path, preset: str, seed: int, episodes: int, epoch: in
         "levels": figures["levels"],
         "curve": top_curve(metrics),
         "phase2": phase2_of(run_dir, seed, episodes),
+        "config": dataclasses.asdict(trainer.cfg),
     }
 
 

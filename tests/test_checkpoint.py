@@ -23,7 +23,7 @@ from mjx_emp import cli
 from mjx_emp.algos.he.agent import Trainer
 from mjx_emp.algos.registry import config_from_json
 from mjx_emp.errors import CheckpointError, CheckpointWriteError, TrainingDiverged
-from mjx_emp.run.checkpoint import Checkpoints, layout_mismatch, layout_of, pack, unpack
+from mjx_emp.run.checkpoint import Checkpoints, config_mismatches, layout_mismatch, layout_of, pack, unpack
 from mjx_emp.run.directory import keep_metrics_through, train_epochs
 
 
@@ -429,3 +429,26 @@ def test_a_planted_half_written_checkpoint_is_ignored_and_cleaned_up(saved_run, 
         assert epoch == 2
         assert_bitwise_equal(restored, states[2])
     assert not partial.exists()
+
+
+def test_a_checkpoint_from_before_episode_links_restores_with_unlinked_rows(saved_run, tmp_path):
+    _, states = saved_run
+    state = states[2]
+    old = state.replace(replay=tuple(b.replace(data=b.data.replace(successor=None)) for b in state.replay))
+    assert not any(".successor" in entry["path"] for entry in layout_of(old))
+    with Checkpoints(tmp_path, keep=1) as checkpoints:
+        checkpoints.save(2, old, TINY)
+        checkpoints.wait()
+        restored = checkpoints.restore(2, jax.eval_shape(lambda: state), TINY)
+    for buffer in restored.replay:
+        np.testing.assert_array_equal(buffer.data.successor, buffer.capacity)
+    unlinked = state.replace(replay=tuple(b.replace(data=b.data.replace(successor=jnp.full_like(b.data.successor, b.capacity)))
+                                         for b in state.replay))
+    assert_bitwise_equal(restored, unlinked)
+
+
+def test_config_fields_a_checkpoint_predates_count_as_their_defaults():
+    saved = json.loads(json.dumps(dataclasses.asdict(TINY)))
+    del saved["her"], saved["n_step"]
+    assert config_mismatches(saved, TINY) == []
+    assert config_mismatches(saved, dataclasses.replace(TINY, her=0.5)) == ["her: checkpoint has 0.0, run has 0.5"]

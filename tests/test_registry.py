@@ -6,6 +6,7 @@ import json
 import pytest
 from tiny import TINY
 
+from mjx_emp.algos.he.config import TrainConfig
 from mjx_emp.algos.he.presets import PRESETS
 from mjx_emp.algos.registry import ALGORITHMS, algorithm_of, all_presets, config_from_json, config_to_json, make_agent
 from mjx_emp.errors import ConfigError
@@ -44,3 +45,14 @@ def test_make_agent_checks_the_config_before_building():
     with pytest.raises(ConfigError, match="env: 'moon' is unknown"):
         make_agent(dataclasses.replace(TINY, env="moon"))
     assert make_agent(TINY).cfg == TINY
+
+
+def test_table_1_presets_keep_the_papers_learner_and_physics():
+    paper = {name: cfg for name, (description, cfg) in PRESETS.items() if description.startswith("Table 1")}
+    assert len(paper) == 12
+    default = TrainConfig()
+    for name, cfg in paper.items():
+        for field in ("her", "n_step", "critic_layer_norm", "actor_layer_norm", "relabel", "critics",
+                      "solver_iterations", "integrator", "fresh_replay", "heading_frame"):
+            assert getattr(cfg, field) == getattr(default, field), (name, field)
+    assert PRESETS["ant-field-cpu-k1-her-ln"][1].her > 0 and PRESETS["ant-field-cpu-k1-her-ln"][1].critic_layer_norm

@@ -169,7 +169,19 @@ def upgrade_renamed_fields(arrays: dict[str, np.ndarray], expected: list[dict]) 
     return upgraded
 
 
-UPGRADES = (upgrade_renamed_fields, upgrade_float_step_counters)
+def upgrade_episode_links(arrays: dict[str, np.ndarray], expected: list[dict]) -> dict[str, np.ndarray]:
+    """Replay rows saved before they linked to their episode's next row get no link (the
+    buffer's capacity): hindsight goals and n-step targets then see each such row alone."""
+    upgraded = dict(arrays)
+    for entry in expected:
+        path = entry["path"]
+        if path.endswith(".data.successor") and path not in arrays:
+            capacity = entry["shape"][-1]
+            upgraded[path] = np.full(entry["shape"], capacity, np.dtype(entry["dtype"]))
+    return upgraded
+
+
+UPGRADES = (upgrade_renamed_fields, upgrade_float_step_counters, upgrade_episode_links)
 """Conversions of arrays saved by earlier versions, applied in order when a checkpoint's
 layout is not today's. Each maps {path: array} to {path: array} given today's layout."""
 
@@ -195,8 +207,12 @@ def layout_mismatch(saved: list[dict], expected: list[dict]) -> str | None:
 
 
 def config_mismatches(saved: dict, expected: Any) -> list[str]:
-    """Fields (other than the resumable ones) whose saved value differs from ``expected``."""
+    """Fields (other than the resumable ones) whose saved value differs from ``expected``; a
+    field the checkpoint predates counts as saved with its default (what runs did before it)."""
     want = json.loads(json.dumps(dataclasses.asdict(expected)))
+    defaults = json.loads(json.dumps({f.name: f.default for f in dataclasses.fields(expected)
+                                      if f.default is not dataclasses.MISSING}))
+    saved = {**{name: value for name, value in defaults.items() if name not in saved}, **saved}
     fields = sorted(set(saved) | set(want))
     return [
         f"{name}: checkpoint has {saved.get(name, '(missing)')}, run has {want.get(name, '(missing)')}"
