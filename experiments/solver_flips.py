@@ -30,7 +30,7 @@ from mjx_emp.run import directory as run
 class Args:
     """Flip rate and success of trained skills under other physics settings."""
 
-    run_dirs: tuple[str, ...]
+    run_dirs: tyro.conf.Positional[tuple[str, ...]]
     settings: tuple[str, ...] = ("0:model", "30:implicitfast", "4:model", "1:implicitfast")
     """ITERATIONS:INTEGRATOR (0 keeps the model's iterations, model its integrator)."""
     episodes: int = 400
