@@ -62,6 +62,9 @@ class Args:
     out: str = "benchmarks/results/learner_ablation_cpu.json"
     report_only: bool = False
     """Train nothing: print the table of the rows in ``--out``."""
+    at_epoch: int | None = None
+    """Train nothing: evaluate each existing run's checkpoint of this epoch (it must still be
+    kept), for runs stopped before their budget."""
 
 
 def variant_config(variant: str, setting: str, seed: int, env_steps: float | None) -> TrainConfig:
@@ -99,12 +102,13 @@ def main(args: Args) -> None:
         for seed in args.seeds:
             config = variant_config(variant, args.setting, seed, args.env_steps)
             run_dir = Path(args.base) / f"{args.setting}-{variant}-s{seed}"
-            if (run_dir / run.CONFIG_FILE).exists():
-                run.resume(ResumeExperiment(resume=str(run_dir), epochs=config.epochs))
-            else:
-                run.train(TrainExperiment(config=config, run_dir=str(run_dir)))
+            if args.at_epoch is None:
+                if (run_dir / run.CONFIG_FILE).exists():
+                    run.resume(ResumeExperiment(resume=str(run_dir), epochs=config.epochs))
+                else:
+                    run.train(TrainExperiment(config=config, run_dir=str(run_dir)))
             row = {"variant": variant, "setting": args.setting,
-                   **evaluate_run(run_dir, "ant-field-cpu-k1", seed, args.episodes)}
+                   **evaluate_run(run_dir, "ant-field-cpu-k1", seed, args.episodes, args.at_epoch)}
             print(json.dumps({k: v for k, v in row.items() if k not in ("levels", "curve", "config")}), flush=True)
             merge_row(out, row, key=("variant", "setting", "seed", "env_steps"))
     print(table(json.loads(out.read_text())["rows"]))
