@@ -49,6 +49,12 @@ class Args:
     for within N minutes needs no longer run."""
     episodes: int = 400
     """Greedy goals of the confirming evaluation."""
+    curves: tuple[str, ...] = ()
+    """Train nothing: read the per-epoch curves of the rows in these JSON files (written by
+    ``experiments/robots_cpu.py`` or ``experiments/learner_ablation.py``) for ``--presets``
+    (a row's ``variant`` or ``preset``) and report the first epoch that meets the target by
+    the same smoothing; no 400-goal confirmation and no wall time (those runs shared the
+    machine)."""
     out: str = ""
     """JSON output path; empty means benchmarks/results/time_to_quality_<backend>.json."""
 
@@ -97,10 +103,48 @@ def time_to_quality(preset: str, seed: int, args: Args) -> dict:
                     "confirm_seconds": confirm_seconds, "config": dataclasses.asdict(cfg)}
 
 
+def first_crossing(curve: list[list[float]], args: Args) -> dict:
+    """The first epoch of a stored curve ([epoch, env steps, top volume, success]) whose volume
+    and trailing mean success meet the target, or the curve's best smoothed point."""
+    best = None
+    for i, (epoch, steps, volume, _) in enumerate(curve):
+        if i + 1 < args.window:
+            continue
+        success = smoothed([(point[2], point[3]) for point in curve[:i + 1]], args.window)
+        if volume >= args.target_volume and success >= args.target_success:
+            return {"reached": True, "epoch": int(epoch), "env_steps": steps, "volume": volume, "success": success}
+        if best is None or volume * success > best["volume"] * best["success"]:
+            best = {"epoch": int(epoch), "env_steps": steps, "volume": volume, "success": success}
+    return {"reached": False, "epoch": int(curve[-1][0]), "env_steps": curve[-1][1], "best": best}
+
+
+def from_curves(args: Args) -> list[dict]:
+    """Rows of :func:`first_crossing` for every stored run of ``--presets`` in ``--curves``."""
+    rows = []
+    for path in args.curves:
+        for stored in json.loads(Path(path).read_text())["rows"]:
+            name = stored.get("variant", stored["preset"])
+            if name in args.presets and "curve" in stored:
+                rows.append({"preset": name, "seed": stored["seed"], "source": path,
+                             "setting": stored.get("setting", "curriculum"),
+                             **first_crossing(stored["curve"], args), "wall_s": None})
+    return rows
+
+
 def main(args: Args) -> None:
     presets = all_presets()
     out = Path(args.out or f"benchmarks/results/time_to_quality_{jax.default_backend()}.json")
     rows = json.loads(out.read_text())["rows"] if out.exists() else []
+    if args.curves:
+        found = [r for r in from_curves(args) if r["setting"] == "curriculum"]
+        for row in found:
+            row["target"] = {"volume": args.target_volume, "success": args.target_success, "window": args.window}
+            print(json.dumps(row), flush=True)
+        keys = {(r["preset"], r["seed"], r["source"]) for r in found}
+        rows = [r for r in rows if (r["preset"], r["seed"], r.get("source")) not in keys] + found
+        out.write_text(json.dumps({"backend": jax.default_backend(), "rows": rows}, indent=1))
+        print(f"wrote {out}")
+        return
     for preset in args.presets:
         if preset not in presets:
             raise SystemExit(f"presets: {preset!r} is unknown; allowed values: {sorted(presets)}")
