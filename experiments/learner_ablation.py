@@ -21,11 +21,13 @@ from pathlib import Path
 import jax
 import tyro
 from baselines import merge_row
+from equal_steps import read_curve_at
 from robots_cpu import evaluate_run
 
 from mjx_emp.algos.he.config import TrainConfig
 from mjx_emp.algos.he.presets import ANT_FIELD_CPU_K1
 from mjx_emp.commands import ResumeExperiment, TrainExperiment
+from mjx_emp.metrics import mean_and_stderr
 from mjx_emp.run import directory as run
 
 LEARNER_OPTIONS: dict[str, dict] = {
@@ -62,6 +64,9 @@ class Args:
     out: str = "benchmarks/results/learner_ablation_cpu.json"
     report_only: bool = False
     """Train nothing: print the table of the rows in ``--out``."""
+    reference: str = "benchmarks/results/robots_cpu.json"
+    """Rows of the unchanged preset (``ant-field-cpu-k1``) whose training curves are read at each
+    curriculum group's step budget, beside the group's own curves, for an equal-steps comparison."""
     at_epoch: int | None = None
     """Train nothing: evaluate each existing run's checkpoint of this epoch (it must still be
     kept), for runs stopped before their budget."""
@@ -93,7 +98,41 @@ def table(rows: list[dict]) -> str:
         lines.append(f"| {r['setting']} | {r['variant']} | {options} | {r['seed']} | {r['env_steps'] / 1e6:.2f} M | "
                      f"{r['wall_s']:.0f} | {r['top_area']:.1f} | {r['success']:.2f} | {' | '.join(by_start)} | "
                      f"{flipped} | {r['coverage_cells']} |")
+    groups: dict[tuple, list[dict]] = {}
+    for r in rows:
+        groups.setdefault((r["setting"], r["variant"], r["env_steps"]), []).append(r)
+    for (setting, variant, steps), group in sorted(groups.items()):
+        if len(group) > 1:
+            figures = {name: mean_and_stderr([r[name] for r in group]) for name in ("top_area", "success", "coverage_cells")}
+            for name, pick in (("from s0", "from_initial"), ("chained", "chained")):
+                figures[name] = mean_and_stderr([r["levels"][-1][pick]["success"] for r in group])
+            figures["flipped"] = mean_and_stderr([r["levels"][-1]["cut_short"] for r in group])
+            summary = ", ".join(f"{name} {f['mean']:.3g} ± {f['std']:.2g} (se {f['stderr']:.2g})"
+                                for name, f in figures.items())
+            lines.append(f"\n{setting} {variant} at {steps / 1e6:.2f} M steps, {len(group)} seeds, mean ± sample std: "
+                         f"{summary}")
     return "\n".join(lines)
+
+
+def curve_comparison(rows: list[dict], reference: list[dict], window: int = 11) -> list[dict]:
+    """Per curriculum group (variant, budget): its runs' curves and the reference preset's curves
+    read alike at that budget (``equal_steps.read_curve_at``: the top volume there, success
+    averaged over ``window`` epochs), as mean and spread over seeds."""
+    groups: dict[tuple, list[dict]] = {}
+    for r in rows:
+        if r["setting"] == "curriculum":
+            groups.setdefault((r["variant"], r["env_steps"]), []).append(r)
+    base = [r for r in reference if r["preset"] == "ant-field-cpu-k1"]
+    found = []
+    for (variant, steps), group in sorted(groups.items()):
+        for name, runs in ((variant, group), ("ant-field-cpu-k1 (reference curves)", base)):
+            if not runs:
+                continue
+            points = [read_curve_at(r["curve"], steps, window) for r in runs]
+            found.append({"variant": name, "env_steps": steps, "seeds": len(points),
+                          "top_area": mean_and_stderr([p["top_volume"] for p in points]),
+                          "success": mean_and_stderr([p["success"] for p in points])})
+    return found
 
 
 def main(args: Args) -> None:
@@ -111,8 +150,16 @@ def main(args: Args) -> None:
                    **evaluate_run(run_dir, "ant-field-cpu-k1", seed, args.episodes, args.at_epoch)}
             print(json.dumps({k: v for k, v in row.items() if k not in ("levels", "curve", "config")}), flush=True)
             merge_row(out, row, key=("variant", "setting", "seed", "env_steps"))
-    print(table(json.loads(out.read_text())["rows"]))
-    print(f"wrote {out}")
+    rows = json.loads(out.read_text())["rows"]
+    print(table(rows))
+    reference = json.loads(Path(args.reference).read_text())["rows"] if Path(args.reference).exists() else []
+    print("\nCurves read at each curriculum budget (top box there, success over 11 epochs), mean ± sample std:")
+    for c in curve_comparison(rows, reference):
+        print(f"- {c['variant']} at {c['env_steps'] / 1e6:.2f} M steps ({c['seeds']} seeds): "
+              f"{c['top_area']['mean']:.3g} ± {c['top_area']['std']:.2g} m² at {c['success']['mean']:.3g} ± "
+              f"{c['success']['std']:.2g}")
+    if not args.report_only:
+        print(f"wrote {out}")
 
 
 if __name__ == "__main__":

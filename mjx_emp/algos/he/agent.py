@@ -467,7 +467,10 @@ class Trainer:
             box = None if level == 0 else goal_spaces[level - 1].actor
 
             def step(learner: DDPGLearner, step_key):
-                sample_key, her_key, relabel_key = jax.random.split(step_key, 3)
+                if cfg.her > 0:
+                    sample_key, her_key, relabel_key = jax.random.split(step_key, 3)
+                else:  # the keys of runs from before hindsight goals existed, so they replay bit for bit
+                    sample_key, relabel_key = jax.random.split(step_key)
                 rows = replay[level].data
                 slots = sample_slots(replay[level], sample_key, cfg.batch_size)
                 batch = jax.tree.map(lambda x: x[slots], rows)
