@@ -58,8 +58,14 @@ def replay_insert(buffer: ReplayBuffer, rows: Rows, valid: jax.Array) -> ReplayB
     When one call brings more valid rows than the capacity, only the newest
     ``capacity`` of them are kept, as if they had been inserted one by one.
     """
-    capacity = buffer.capacity
     dest, count = insertion_slots(buffer, valid.reshape(-1))
+    return replay_write(buffer, rows, dest, count)
+
+
+def replay_write(buffer: ReplayBuffer, rows: Rows, dest: jax.Array, count: jax.Array) -> ReplayBuffer:
+    """``rows`` written at the slots :func:`insertion_slots` gave (``dest``, ``count``), for a
+    caller that needs the slots too (episode links)."""
+    capacity = buffer.capacity
     data = jax.tree.map(lambda buf, x: buf.at[dest].set(x, mode="drop"), buffer.data, rows)
     return ReplayBuffer(
         data=data,

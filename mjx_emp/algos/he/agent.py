@@ -63,6 +63,7 @@ from mjx_emp.replay import (
     replay_init,
     replay_insert,
     replay_sample,
+    replay_write,
     sample_slots,
 )
 from mjx_emp.rollout.collect import CollectTotals, collect
@@ -431,7 +432,7 @@ class Trainer:
         slots, count = insertion_slots(buffer, valid.reshape(-1))
         none = jnp.full(valid.shape, buffer.capacity, jnp.int32)
         rows = flatten_rows(goal_transitions(transitions, successor=none))
-        buffer = replay_insert(buffer, rows, valid)
+        buffer = replay_write(buffer, rows, slots, count)
         successor, last = link_episode_rows(buffer.data.successor, slots.reshape(valid.shape), valid,
                                             transitions.final & store, last)
         return buffer.replace(data=buffer.data.replace(successor=successor)), last
