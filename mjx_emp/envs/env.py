@@ -28,7 +28,8 @@ from mjx_emp.envs.mjx_quiet import mjx
 from mjx_emp.envs.registry import DOMAINS, DomainSpec, check_physics
 from mjx_emp.errors import ConfigError
 
-MODELS_DIR = Path(__file__).resolve().parents[2] / "models"
+MODELS_DIR = Path(__file__).resolve().parents[1] / "models"
+"""The MJCF of every domain, shipped inside the package so that a wheel install can build them."""
 
 
 @struct.dataclass
