@@ -121,9 +121,9 @@ def open_loop_gait_search(env, candidates: int = 300, period: int = 2, actions: 
 
 def measure_trained(run_dir: str, seed: int) -> dict:
     """Mean displacement per action of greedy top-level skills of a trained run, from the initial state."""
-    from mjx_emp.run import directory as run
+    from mjx_emp.run import jobs
 
-    trainer, _, state = run.load_run(Path(run_dir))
+    trainer, _, state = jobs.load_run(Path(run_dir))
     positions, mask = trainer.skill_paths(state, jax.random.key(seed), COVERAGE_SKILLS)
     steps = np.linalg.norm(np.diff(positions, axis=0), axis=-1)
     counted = mask[1:]

@@ -24,10 +24,10 @@ import numpy as np
 import tyro
 
 from mjx_emp.algos.he.presets import PHASE2_PRESETS, phase2_preset_for
-from mjx_emp.algos.registry import algorithm_of, all_presets
+from mjx_emp.algos.registry import GOAL_SPACES, algorithm_of, all_presets, skill_kind
 from mjx_emp.commands import Phase2Experiment, ResumeExperiment, TrainExperiment
 from mjx_emp.metrics import coverage_cells, mean_and_stderr
-from mjx_emp.run import directory as run
+from mjx_emp.run import jobs, store
 from mjx_emp.run.evaluate import COVERAGE_SKILLS, phase2_figures, skill_figures
 
 ALGOS = ("he", "diayn", "hidio", "dads", "metra")
@@ -75,34 +75,34 @@ def train_or_resume(base: Path, preset: str, seed: int, epochs: int | None,
             raise SystemExit(f"goal_half_width: only GCRL presets have a hand-set box; {preset!r} is not one")
         config = dataclasses.replace(config, goal_half_width=(goal_half_width,) * len(config.goal_half_width))
     run_dir = base / f"{variant_name(preset, goal_half_width)}-s{seed}"
-    if (run_dir / run.CONFIG_FILE).exists():
-        run.resume(ResumeExperiment(resume=str(run_dir), epochs=config.epochs))
+    if (run_dir / store.CONFIG_FILE).exists():
+        jobs.resume(ResumeExperiment(resume=str(run_dir), epochs=config.epochs))
     else:
-        run.train(TrainExperiment(config=config, run_dir=str(run_dir)))
+        jobs.train(TrainExperiment(config=config, run_dir=str(run_dir)))
     return run_dir
 
 
 def train_phase2(run_dir: Path) -> None:
     """Phase 2 on the run's skills with its domain's preset (resumed if it is there)."""
-    phase2_dir = run_dir / run.PHASE2_SUBDIR
-    if (phase2_dir / run.CONFIG_FILE).exists():
-        run.resume_phase2(ResumeExperiment(resume=str(phase2_dir)))
+    phase2_dir = run_dir / store.PHASE2_SUBDIR
+    if (phase2_dir / store.CONFIG_FILE).exists():
+        jobs.resume_phase2(ResumeExperiment(resume=str(phase2_dir)))
         return
-    preset = phase2_preset_for(run.read_run_config(run_dir, "run_dir"))
-    run.train_phase2(Phase2Experiment(run_dir=str(run_dir), config=PHASE2_PRESETS[preset][2]))
+    preset = phase2_preset_for(store.read_run_config(run_dir, "run_dir"))
+    jobs.train_phase2(Phase2Experiment(run_dir=str(run_dir), config=PHASE2_PRESETS[preset][2]))
 
 
 def evaluate_run(run_dir: Path, preset: str, seed: int) -> dict:
     """One row: coverage for any method, the posterior's std for DIAYN and HIDIO."""
-    agent, epoch, state = run.load_run(run_dir)
+    agent, epoch, state = jobs.load_run(run_dir)
     algo = algorithm_of(agent.cfg).name
     key = jax.random.key(1000 + seed)
-    if algo in run.GOAL_SPACE_ALGORITHMS:  # HE and GCRL: skill_paths of the hierarchy
+    if skill_kind(agent.cfg) == GOAL_SPACES:  # HE and GCRL: skill_paths of the hierarchy
         figures = {"coverage_cells": coverage_cells(*agent.skill_paths(state, key, COVERAGE_SKILLS)),
                    "posterior_std": None}
     else:
         figures = skill_figures(agent, state, key)
-    metrics = [json.loads(line) for line in (run_dir / run.METRICS_FILE).read_text().splitlines() if line]
+    metrics = [json.loads(line) for line in (run_dir / store.METRICS_FILE).read_text().splitlines() if line]
     return {
         "algo": algo, "env": agent.cfg.env, "preset": preset, "seed": seed, "run_dir": str(run_dir), "epoch": epoch,
         "env_steps": float(state.env_steps.value()), "wall_s": sum(m["seconds"] for m in metrics if m["epoch"] <= epoch),
@@ -113,10 +113,10 @@ def evaluate_run(run_dir: Path, preset: str, seed: int) -> dict:
 
 def phase2_of(run_dir: Path, seed: int, episodes: int = 400) -> dict:
     """RUN_DIR/phase2's figures (trained with ``--phase2``), or None where it has none."""
-    phase2_dir = run_dir / run.PHASE2_SUBDIR
-    if not (phase2_dir / run.CONFIG_FILE).exists():
+    phase2_dir = run_dir / store.PHASE2_SUBDIR
+    if not (phase2_dir / store.CONFIG_FILE).exists():
         return {"phase2_min_distance": None, "phase2_success": None}
-    figures = phase2_figures(*run.load_phase2(phase2_dir), jax.random.key(1000 + seed), episodes)
+    figures = phase2_figures(*jobs.load_phase2(phase2_dir), jax.random.key(1000 + seed), episodes)
     return {"phase2_min_distance": figures["min_distance"], "phase2_success": figures["success"]}
 
 
@@ -165,7 +165,7 @@ def main(args: Args) -> None:
 
 def phase2_curve(run_dir: Path) -> tuple[np.ndarray, np.ndarray] | None:
     """(phase-2 env steps, greedy mean min distance) per epoch of RUN_DIR/phase2, or None."""
-    path = Path(run_dir) / run.PHASE2_SUBDIR / run.METRICS_FILE
+    path = Path(run_dir) / store.PHASE2_SUBDIR / store.METRICS_FILE
     if not path.exists():
         return None
     lines = [json.loads(line) for line in path.read_text().splitlines() if line]

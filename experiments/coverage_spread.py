@@ -20,7 +20,7 @@ import jax
 import tyro
 
 from mjx_emp.metrics import coverage_cells, mean_and_stderr
-from mjx_emp.run import directory as run
+from mjx_emp.run import jobs
 from mjx_emp.run.evaluate import COVERAGE_SKILLS
 
 
@@ -42,7 +42,7 @@ class Args:
 def coverage_over_draws(run_dir: Path, seed: int, draws: int) -> list[int]:
     """Coverage cells of RUN_DIR's newest checkpoint for ``draws`` independent draws of
     :data:`COVERAGE_SKILLS` skills (keys fixed by seed, so a rerun gives the same counts)."""
-    agent, _, state = run.load_run(run_dir)
+    agent, _, state = jobs.load_run(run_dir)
     return [coverage_cells(*agent.skill_paths(state, jax.random.key(5000 + 100 * seed + draw), COVERAGE_SKILLS))
             for draw in range(draws)]
 

@@ -28,7 +28,7 @@ import tyro
 from robots_cpu import top_curve
 
 from mjx_emp.metrics import mean_and_stderr
-from mjx_emp.viz.plots import read_metrics
+from mjx_emp.run.store import read_metrics
 
 ROBOTS = {"ant-field": ("ant-field-cpu-k1", "ant-field-cpu-k2"),
           "half-cheetah": ("half-cheetah-cpu-k1", "half-cheetah-cpu-k2")}

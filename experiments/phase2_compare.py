@@ -32,7 +32,7 @@ from mjx_emp.algos.he.config import TrainConfig
 from mjx_emp.algos.he.presets import PHASE2_PRESETS, POINT_MASS_K1, POINT_MASS_K2
 from mjx_emp.commands import Phase2Experiment, TrainExperiment
 from mjx_emp.metrics import mean_and_stderr
-from mjx_emp.run import directory as run
+from mjx_emp.run import jobs, store
 from mjx_emp.tables import markdown_table, mean_stderr_text
 
 AGENTS: dict[str, TrainConfig] = {
@@ -63,18 +63,18 @@ class Args:
 
 def _phase1(base: Path, agent: str, seed: int) -> Path:
     run_dir = base / f"{agent}-s{seed}"
-    if not (run_dir / run.CONFIG_FILE).exists():
-        run.train(TrainExperiment(config=dataclasses.replace(AGENTS[agent], seed=seed), run_dir=str(run_dir)))
+    if not (run_dir / store.CONFIG_FILE).exists():
+        jobs.train(TrainExperiment(config=dataclasses.replace(AGENTS[agent], seed=seed), run_dir=str(run_dir)))
     return run_dir
 
 
 def _phase2(run_dir: Path, task: str, preset: str, seed: int, episodes: int) -> dict:
     out = run_dir / f"phase2-{task}"
     config = dataclasses.replace(PHASE2_PRESETS[preset][2], seed=seed)
-    if not (out / run.CONFIG_FILE).exists():
-        run.train_phase2(Phase2Experiment(run_dir=str(run_dir), config=config, out=str(out)))
-    trainer, epoch, state = run.load_phase2(out)
-    _, _, skills = run.load_run(run_dir)
+    if not (out / store.CONFIG_FILE).exists():
+        jobs.train_phase2(Phase2Experiment(run_dir=str(run_dir), config=config, out=str(out)))
+    trainer, epoch, state = jobs.load_phase2(out)
+    _, _, skills = jobs.load_run(run_dir)
     key = jax.random.key(1000 + seed)
     return {"run_dir": str(out), "epoch": epoch, "env_steps": float(state.env_steps),
             "skills_top_goal_space": trainer.phase1.goal_spaces(skills)[-1],

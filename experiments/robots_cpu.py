@@ -23,9 +23,9 @@ import jax
 import tyro
 from baselines import merge_row, train_or_resume
 
-from mjx_emp.run import directory as run
+from mjx_emp.run import jobs, store
 from mjx_emp.run.evaluate import phase1_figures, phase2_figures
-from mjx_emp.viz.plots import read_metrics
+from mjx_emp.run.store import read_metrics
 
 
 @dataclasses.dataclass
@@ -57,7 +57,7 @@ def top_curve(metrics: list[dict]) -> list[list[float]]:
 
 def evaluate_run(run_dir: Path, preset: str, seed: int, episodes: int, epoch: int | None = None) -> dict:
     """One JSON row: what the run used and what its top level learned (at ``epoch``, or the newest)."""
-    trainer, epoch, state = run.load_run(run_dir, epoch=epoch)
+    trainer, epoch, state = jobs.load_run(run_dir, epoch=epoch)
     figures = phase1_figures(trainer, state, jax.random.key(1000 + seed), episodes)
     metrics = [m for m in read_metrics(run_dir) if m["epoch"] <= epoch]
     top = figures["levels"][-1]
@@ -78,10 +78,10 @@ def evaluate_run(run_dir: Path, preset: str, seed: int, episodes: int, epoch: in
 
 def phase2_of(run_dir: Path, seed: int, episodes: int) -> dict | None:
     """The paper's phase-2 figure of RUN_DIR/phase2, as `mjx-emp eval` reports it, or None."""
-    phase2_dir = run_dir / run.PHASE2_SUBDIR
-    if not (phase2_dir / run.CONFIG_FILE).exists():
+    phase2_dir = run_dir / store.PHASE2_SUBDIR
+    if not (phase2_dir / store.CONFIG_FILE).exists():
         return None
-    return phase2_figures(*run.load_phase2(phase2_dir), jax.random.key(1000 + seed), episodes)
+    return phase2_figures(*jobs.load_phase2(phase2_dir), jax.random.key(1000 + seed), episodes)
 
 
 def main(args: Args) -> None:

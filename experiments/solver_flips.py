@@ -23,7 +23,7 @@ import jax
 import tyro
 
 from mjx_emp.algos.he.agent import Trainer
-from mjx_emp.run import directory as run
+from mjx_emp.run import jobs
 
 
 @dataclasses.dataclass
@@ -48,7 +48,7 @@ def physics(setting: str) -> dict:
 def main(args: Args) -> None:
     rows = []
     for run_dir in args.run_dirs:
-        trained, epoch, state = run.load_run(Path(run_dir))
+        trained, epoch, state = jobs.load_run(Path(run_dir))
         trainers = {s: Trainer(dataclasses.replace(trained.cfg, **physics(s))) for s in args.settings}
         rounds = max(1, math.ceil(args.episodes / trained.cfg.num_envs))
         top = trained.cfg.k - 1

@@ -16,7 +16,7 @@ from pathlib import Path
 import jax
 import tyro
 
-from mjx_emp.run import directory as run
+from mjx_emp.run import jobs
 from mjx_emp.run.evaluate import phase1_figures
 
 
@@ -37,7 +37,7 @@ def top_figures(trainer, state, key, episodes: int) -> dict:
 def main(args: Args) -> None:
     rows = []
     for seed, run_dir in enumerate(args.runs):
-        trainer, epoch, state = run.load_run(Path(run_dir))
+        trainer, epoch, state = jobs.load_run(Path(run_dir))
         target = state.replace(policies=tuple(p.replace(actor=p.target_actor) for p in state.policies))
         key = jax.random.key(1000 + seed)
         rows.append({"run_dir": run_dir, "epoch": epoch, "online": top_figures(trainer, state, key, args.episodes),

@@ -10,25 +10,27 @@ import os
 import sys
 import time
 from pathlib import Path
+from collections.abc import Callable
 from typing import Annotated, Any, Union
 
 import tyro
 
 from mjx_emp.algos.he.presets import PHASE2_PRESETS, phase2_preset_for
-from mjx_emp.algos.registry import algorithm_of, all_presets
+from mjx_emp.algos.registry import LATENT_SKILLS, algorithm_of, all_presets
 from mjx_emp.checks import check_levels
 from mjx_emp.commands import (
     EvalExperiment,
     Phase2Experiment,
     PlotExperiment,
+    PresetsExperiment,
     RenderExperiment,
     ResumeExperiment,
     RolloutExperiment,
     TrainExperiment,
 )
-from mjx_emp.errors import ConfigError
-from mjx_emp.run import directory as run
-from mjx_emp.run.directory import main_guarded
+from mjx_emp.errors import CheckpointError, CheckpointWriteError, ConfigError, Interrupted, RenderError, TrainingDiverged
+from mjx_emp.run import jobs, store
+from mjx_emp.run.preflight import explain_out_of_memory
 
 
 def validate_rollout(cfg: RolloutExperiment) -> None:
@@ -110,13 +112,12 @@ def rollout(cfg: RolloutExperiment) -> None:
 
 def plot(exp: PlotExperiment) -> None:
     """Draw a run's pictures into RUN_DIR/plots/ and print their paths."""
-    from mjx_emp.viz.plots import plot_run, plot_skill_run
+    from mjx_emp.viz.plots import plot_any_run
 
     run_dir = Path(exp.run_dir)
-    if not (run_dir / run.METRICS_FILE).exists():
-        raise ConfigError(f"run_dir: {str(run_dir)!r} has no {run.METRICS_FILE}; is it a run directory?")
-    draw = plot_run if run.has_goal_spaces(run_dir) else plot_skill_run
-    for path in draw(run_dir):
+    if not (run_dir / store.METRICS_FILE).exists():
+        raise ConfigError(f"run_dir: {str(run_dir)!r} has no {store.METRICS_FILE}; is it a run directory?")
+    for path in plot_any_run(run_dir):
         print(path)
 
 
@@ -129,24 +130,19 @@ def render(exp: RenderExperiment) -> None:
     if not exp.fps > 0:
         raise ConfigError(f"fps: must be > 0; got {exp.fps}")
     import jax
-    import numpy as np
 
-    from mjx_emp.viz.render import Recording, record_rollout, render_frames, write_gif
+    from mjx_emp.viz.render import record_rollout, render_frames, skill_recording, write_gif
 
     if exp.phase2:
-        phase2_dir = Path(exp.run_dir) / run.PHASE2_SUBDIR
-        if not (phase2_dir / run.CONFIG_FILE).exists():
+        phase2_dir = Path(exp.run_dir) / store.PHASE2_SUBDIR
+        if not (phase2_dir / store.CONFIG_FILE).exists():
             raise ConfigError(f"phase2: {str(phase2_dir)!r} holds no phase-2 run; train one with "
                               f"`mjx-emp phase2 {exp.run_dir}`")
-        trainer, epoch, state = run.load_phase2(phase2_dir)
+        trainer, epoch, state = jobs.load_phase2(phase2_dir)
         recording = record_rollout(trainer.greedy_episodes(state), jax.random.key(exp.seed), exp.steps)
-    elif run.has_goal_spaces(Path(exp.run_dir)):
-        trainer, epoch, state = run.load_run(Path(exp.run_dir))
-        recording = record_rollout(trainer.skill_chain(state), jax.random.key(exp.seed), exp.steps)
-    else:  # a flat skill learner: greedy skills from the prior, one after another
-        trainer, epoch, state = run.load_run(Path(exp.run_dir))
-        qpos, mocap = trainer.record_skills(state, jax.random.key(exp.seed), exp.steps)
-        recording = Recording(qpos, mocap, np.zeros((exp.steps, 0, len(trainer.env.goal_qpos))))
+    else:
+        trainer, epoch, state = jobs.load_run(Path(exp.run_dir))
+        recording = skill_recording(trainer, state, jax.random.key(exp.seed), exp.steps)
     frames = render_frames(trainer.env, recording, exp.width, exp.height, exp.distance)
     default_name = "phase2.gif" if exp.phase2 else "skills.gif"
     out = write_gif(frames, Path(exp.out or Path(exp.run_dir) / default_name), exp.fps)
@@ -166,18 +162,19 @@ def evaluate(exp: EvalExperiment) -> dict:
     from mjx_emp.metrics import LEVEL_FIGURES, aggregate_agent, aggregate_phase2, aggregate_runs
     from mjx_emp.run.evaluate import COVERAGE_SKILLS, phase1_figures, phase2_figures, skill_figures
 
-    algorithms = {algorithm_of(run.read_run_config(Path(d), "run_dirs")).name for d in exp.run_dirs}
+    algorithms = {algorithm_of(store.read_run_config(Path(d), "run_dirs")) for d in exp.run_dirs}
     if len(algorithms) > 1:
-        raise ConfigError(f"run_dirs: runs of one algorithm at a time (they are aggregated); got {sorted(algorithms)}")
-    if not algorithms <= set(run.GOAL_SPACE_ALGORITHMS):  # flat skill learners: no goal spaces to report
+        raise ConfigError("run_dirs: runs of one algorithm at a time (they are aggregated); got "
+                          f"{sorted(a.name for a in algorithms)}")
+    if next(iter(algorithms)).skills == LATENT_SKILLS:  # no goal spaces to report
         return evaluate_skills(exp, skill_figures)
     runs = []
     for run_dir in exp.run_dirs:
-        trainer, _, state = run.load_run(Path(run_dir))
+        trainer, _, state = jobs.load_run(Path(run_dir))
         report = {"run_dir": run_dir, **phase1_figures(trainer, state, jax.random.key(exp.seed), exp.episodes)}
-        phase2_dir = Path(run_dir) / run.PHASE2_SUBDIR
-        if (phase2_dir / run.CONFIG_FILE).exists():
-            report["phase2"] = phase2_figures(*run.load_phase2(phase2_dir), jax.random.key(exp.seed), exp.episodes)
+        phase2_dir = Path(run_dir) / store.PHASE2_SUBDIR
+        if (phase2_dir / store.CONFIG_FILE).exists():
+            report["phase2"] = phase2_figures(*jobs.load_phase2(phase2_dir), jax.random.key(exp.seed), exp.episodes)
         runs.append(report)
     report = {"runs": runs, "levels": aggregate_runs(runs), **aggregate_agent(runs)}
     with_phase2 = [r["phase2"] for r in runs if "phase2" in r]
@@ -218,11 +215,11 @@ def evaluate_skills(exp: EvalExperiment, skill_figures) -> dict:
 
     runs = []
     for run_dir in exp.run_dirs:
-        agent, _, state = run.load_run(Path(run_dir))
+        agent, _, state = jobs.load_run(Path(run_dir))
         report = {"run_dir": run_dir, **skill_figures(agent, state, jax.random.key(exp.seed))}
-        phase2_dir = Path(run_dir) / run.PHASE2_SUBDIR
-        if (phase2_dir / run.CONFIG_FILE).exists():
-            report["phase2"] = phase2_figures(*run.load_phase2(phase2_dir), jax.random.key(exp.seed), exp.episodes)
+        phase2_dir = Path(run_dir) / store.PHASE2_SUBDIR
+        if (phase2_dir / store.CONFIG_FILE).exists():
+            report["phase2"] = phase2_figures(*jobs.load_phase2(phase2_dir), jax.random.key(exp.seed), exp.episodes)
         runs.append(report)
     report = {"runs": runs, "coverage_cells": mean_and_stderr([r["coverage_cells"] for r in runs])}
     with_phase2 = [r["phase2"] for r in runs if "phase2" in r]
@@ -254,7 +251,7 @@ def with_phase2_preset(args: list[str]) -> list[str]:
     """
     if not args or args[0] in PHASE2_PRESETS or args[0].startswith("-"):
         return args
-    skills = run.read_run_config(Path(args[0]), "run_dir")
+    skills = store.read_run_config(Path(args[0]), "run_dir")
     preset = phase2_preset_for(skills)
     if preset is None:
         raise ConfigError(
@@ -264,28 +261,30 @@ def with_phase2_preset(args: list[str]) -> list[str]:
     return [preset, *args]
 
 
-def phase2(args: list[str]) -> None:
-    """``mjx-emp phase2 [PRESET] RUN_DIR [--field value ...]`` or ``mjx-emp phase2 --resume DIR``."""
-    if any(arg == "--resume" or arg.startswith("--resume=") for arg in args):
-        exp = tyro.cli(ResumeExperiment, args=args, prog="mjx-emp phase2 --resume")
-        main_guarded(run.resume_phase2, exp)
-        return
-    presets = {name: (description, Phase2Experiment(run_dir="", config=cfg))
-               for name, (description, _, cfg) in PHASE2_PRESETS.items()}
+def canonical_args(argv: list[str]) -> list[str]:
+    """The command line in the one form the parser reads: ``train --resume RUN_DIR ...`` and
+    ``phase2 --resume DIR ...`` are ``resume RUN_DIR ...``; ``phase2 RUN_DIR ...`` names the
+    run's own Table-2 preset (:func:`with_phase2_preset`)."""
+    command, rest = argv[:1], argv[1:]
+    if command in (["train"], ["phase2"]):
+        for i, arg in enumerate(rest):
+            if arg == "--resume" and i + 1 < len(rest):
+                return ["resume", rest[i + 1], *rest[:i], *rest[i + 2:]]
+            if arg.startswith("--resume="):
+                return ["resume", arg.split("=", 1)[1], *rest[:i], *rest[i + 1:]]
+    if command == ["phase2"]:
+        return ["phase2", *with_phase2_preset(rest)]
+    return argv
 
-    def parse_and_start(args: list[str]) -> None:
-        exp = tyro.extras.overridable_config_cli(presets, args=with_phase2_preset(args), prog="mjx-emp phase2")
-        run.train_phase2(exp)
 
-    main_guarded(parse_and_start, args)
-
-
-COMMANDS = {
-    "rollout": (RolloutExperiment, rollout),
-    "eval": (EvalExperiment, evaluate),
-    "plot": (PlotExperiment, plot),
-    "render": (RenderExperiment, render),
-}
+def list_presets(_: PresetsExperiment) -> None:
+    """Print every phase-1 and phase-2 preset with its description."""
+    print("phase 1 (mjx-emp train PRESET):")
+    for name, (description, _) in all_presets().items():
+        print(f"  {name:24s} {description}")
+    print("phase 2 (mjx-emp phase2 [PRESET] RUN_DIR):")
+    for name, (description, phase1, _) in PHASE2_PRESETS.items():
+        print(f"  {name:24s} {description} (on {phase1})")
 
 
 def preset_commands() -> Any:
@@ -297,6 +296,46 @@ def preset_commands() -> Any:
         for name, (description, cfg) in all_presets().items()
     ]
     return Union[tuple(commands)]  # noqa: UP007 (a runtime union of Annotated types)
+
+
+def phase2_commands() -> Any:
+    """``mjx-emp phase2``'s subcommands: one per Table-2 preset, every Phase2Config field a flag."""
+    commands = [
+        Annotated[Phase2Experiment, tyro.conf.subcommand(
+            name, default=Phase2Experiment(run_dir=tyro.MISSING, config=cfg), description=f"{description} (on {phase1})")]
+        for name, (description, phase1, cfg) in PHASE2_PRESETS.items()
+    ]
+    return Union[tuple(commands)]  # noqa: UP007
+
+
+COMMANDS: dict[str, tuple[Any, Any, str]] = {
+    "train": (preset_commands, jobs.train, "Train a new run of a preset; every config field is a flag "
+              "(`train --resume RUN_DIR` is `resume RUN_DIR`)."),
+    "resume": (lambda: ResumeExperiment, jobs.resume, "Continue a run or phase-2 directory from its newest good "
+               "checkpoint, bit for bit."),
+    "phase2": (phase2_commands, jobs.train_phase2, "Phase 2: reach goals of a region with a run's skills as actions "
+               "(`phase2 RUN_DIR` picks the run's own preset)."),
+    "presets": (lambda: PresetsExperiment, list_presets, "List every phase-1 and phase-2 preset."),
+    "eval": (lambda: EvalExperiment, evaluate, "Figures of runs' newest checkpoints (goal spaces, success, "
+             "coverage; phase 2's distance), mean over runs."),
+    "plot": (lambda: PlotExperiment, plot, "Draw a run's pictures into RUN_DIR/plots/."),
+    "render": (lambda: RenderExperiment, render, "Film a run's greedy skills (or its phase-2 policy)."),
+    "rollout": (lambda: RolloutExperiment, rollout, "Roll out a random-init k-level agent and print throughput."),
+}
+"""Every command: (its type, built on demand; what runs it; its one-line help)."""
+
+
+def parse(argv: list[str]) -> tuple[Any, Any]:
+    """(what runs the command, its parsed experiment) for a canonical command line."""
+    choices = Union[tuple(  # noqa: UP007
+        Annotated[make_type(), tyro.conf.subcommand(name, description=" ".join(help_text.split()))]
+        for name, (make_type, _, help_text) in COMMANDS.items()
+    )]
+    chosen = argv[0] if argv and argv[0] in COMMANDS else None
+    exp = tyro.cli(choices, args=argv, prog="mjx-emp")
+    if chosen is None:  # tyro exits on a missing or unknown command; anything else is a bug
+        raise AssertionError(f"tyro parsed {argv} without a command")
+    return COMMANDS[chosen][1], exp
 
 
 NO_COMPILE_CACHE = "--no-compile-cache"
@@ -322,43 +361,51 @@ def use_compile_cache(argv: list[str]) -> list[str]:
     return argv
 
 
-def main(argv: list[str] | None = None) -> None:
-    """Entry point of the ``mjx-emp`` console script.
+def main_guarded(command: Callable, exp) -> None:
+    """Run a CLI command; bad input exits 2, divergence, a failed checkpoint write or running out of
+    memory 1, no offscreen GL 3, SIGINT/SIGTERM 130/143, each with a reason."""
+    failures = (
+        (ConfigError, "invalid configuration", 2),
+        (CheckpointError, "unusable checkpoint", 2),
+        (TrainingDiverged, "training diverged", 1),
+        (CheckpointWriteError, "checkpoint write failed", 1),
+        (RenderError, "cannot render", 3),
+    )
+    try:
+        command(exp)
+    except Interrupted as stop:
+        print(f"mjx-emp: {stop}", file=sys.stderr)
+        sys.exit(128 + stop.signum)
+    except tuple(kind for kind, _, _ in failures) as err:
+        what, code = next((what, code) for kind, what, code in failures if isinstance(err, kind))
+        print(f"mjx-emp: {what}: {err}", file=sys.stderr)
+        sys.exit(code)
+    except Exception as err:  # XLA's out-of-memory error is explained; anything else is a bug to report
+        explanation = explain_out_of_memory(err)
+        if explanation is None:
+            raise
+        print(f"mjx-emp: {explanation}", file=sys.stderr)
+        sys.exit(1)
 
-    ``mjx-emp train PRESET [--field value ...]`` trains a preset (``mjx-emp presets`` lists
-    them), ``mjx-emp train --resume RUN_DIR`` continues a run, ``mjx-emp rollout`` runs a
-    random-init agent, ``mjx-emp phase2 RUN_DIR`` trains the downstream policy over a run's
-    skills (``--resume DIR`` continues it), ``mjx-emp eval RUN_DIR...`` reports phase-1 and
-    phase-2 figures, ``mjx-emp plot RUN_DIR`` draws a run's pictures and ``mjx-emp render
-    RUN_DIR`` writes a GIF of its skills. Compiled programs are cached under
-    ``default_compile_cache()``; ``--no-compile-cache`` (any command) compiles afresh.
+
+def main(argv: list[str] | None = None) -> None:
+    """Entry point of the ``mjx-emp`` console script: one parser, every command a subcommand
+    (``mjx-emp --help`` lists them, ``mjx-emp COMMAND --help`` shows every flag).
+
+    Compiled programs are cached under ``default_compile_cache()``; ``--no-compile-cache``
+    (any command) compiles afresh. Bad input exits 2 naming the field (:func:`main_guarded`).
     """
     argv = use_compile_cache(sys.argv[1:] if argv is None else list(argv))
     if argv[:1] == ["render"]:
         from mjx_emp.viz.render import configure_headless_gl
 
         configure_headless_gl()  # before anything imports mujoco
-    if argv[:1] == ["presets"]:
-        print("phase 1 (mjx-emp train PRESET):")
-        for name, (description, _) in all_presets().items():
-            print(f"  {name:24s} {description}")
-        print("phase 2 (mjx-emp phase2 [PRESET] RUN_DIR):")
-        for name, (description, phase1, _) in PHASE2_PRESETS.items():
-            print(f"  {name:24s} {description} (on {phase1})")
-        return
-    if argv[:1] == ["phase2"]:
-        phase2(argv[1:])
-        return
-    if argv[:1] == ["train"]:
-        if any(arg == "--resume" or arg.startswith("--resume=") for arg in argv[1:]):
-            exp = tyro.cli(ResumeExperiment, args=argv[1:], prog="mjx-emp train --resume")
-            main_guarded(run.resume, exp)
-            return
-        main_guarded(run.train, tyro.cli(preset_commands(), args=argv[1:], prog="mjx-emp train"))
-        return
-    configs = {name: config for name, (config, _) in COMMANDS.items()}
-    cfg = tyro.extras.subcommand_cli_from_dict(configs, args=argv, prog="mjx-emp")
-    main_guarded(next(command for config, command in COMMANDS.values() if isinstance(cfg, config)), cfg)
+
+    def parse_and_run(args: list[str]) -> None:
+        command, exp = parse(canonical_args(args))
+        command(exp)
+
+    main_guarded(parse_and_run, argv)
 
 
 if __name__ == "__main__":

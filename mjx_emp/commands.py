@@ -23,7 +23,7 @@ class TrainExperiment(Generic[ConfigT]):
     """Training of any registered algorithm (Hierarchical Empowerment's phase 1, or a baseline).
 
     RUN_DIR receives config.json, metrics.jsonl (one line per epoch) and checkpoints/ (an
-    orbax checkpoint after every epoch; continue with `mjx-emp train --resume RUN_DIR`).
+    orbax checkpoint after every epoch; continue with `mjx-emp resume RUN_DIR`).
     """
 
     config: Annotated[ConfigT, tyro.conf.OmitArgPrefixes]
@@ -52,8 +52,8 @@ class TrainExperiment(Generic[ConfigT]):
 class ResumeExperiment:
     """Continue a run from its latest good checkpoint, bit for bit as if never stopped."""
 
-    resume: str
-    """Run directory written by `mjx-emp train` (for `mjx-emp phase2 --resume`: the phase-2 directory)."""
+    resume: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="RUN_DIR")]
+    """Run directory written by `mjx-emp train`, or a phase-2 directory written by `mjx-emp phase2`."""
     epochs: int | None = None
     """New total number of epochs (default: the run's own). The only setting a resume may change."""
     fallback: bool = False
@@ -66,6 +66,11 @@ class ResumeExperiment:
 
 
 @dataclasses.dataclass(frozen=True)
+class PresetsExperiment:
+    """List every preset: phase 1 (`mjx-emp train PRESET`) and phase 2 (`mjx-emp phase2 PRESET RUN_DIR`)."""
+
+
+@dataclasses.dataclass(frozen=True)
 class Phase2Experiment:
     """Phase 2 of Hierarchical Empowerment: learn to reach goals drawn uniformly from a fixed
     region, with the phase-1 run's top-level skills as actions (for a flat skill learner's
@@ -73,7 +78,7 @@ class Phase2Experiment:
 
     Writes to OUT (default RUN_DIR/phase2): config.json, skills.json (the phase-1 config),
     metrics.jsonl and checkpoints/ (one per epoch; continue with
-    `mjx-emp phase2 --resume OUT`).
+    `mjx-emp resume OUT`).
     """
 
     run_dir: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="RUN_DIR")]
@@ -92,7 +97,7 @@ class EvalExperiment:
     exists, the paper's phase-2 figure: the mean over episodes of the minimum distance to
     goal. Several runs (seeds) are aggregated to mean and standard error."""
 
-    run_dirs: tyro.conf.Positional[tuple[str, ...]]
+    run_dirs: Annotated[tuple[str, ...], tyro.conf.Positional, tyro.conf.arg(metavar="RUN_DIR")]
     """Run directories written by `mjx-emp train` (one per seed)."""
     episodes: int = 400
     """Evaluation episodes per level and run, and phase-2 episodes per run (each rounded up
@@ -108,7 +113,7 @@ class PlotExperiment:
     """Draw RUN_DIR/plots/: goal_space_growth.png from metrics.jsonl and, from the checkpoints,
     goal_spaces_epoch0.png and goal_spaces.png (boxes per level with greedy skill chains)."""
 
-    run_dir: tyro.conf.Positional[str]
+    run_dir: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="RUN_DIR")]
     """Run directory written by `mjx-emp train`."""
 
 
@@ -117,7 +122,7 @@ class RenderExperiment:
     """Render the greedy chain of top-level skills from RUN_DIR's newest checkpoint as a GIF
     (or, with --phase2, the phase-2 policy reaching goals from its region)."""
 
-    run_dir: tyro.conf.Positional[str]
+    run_dir: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="RUN_DIR")]
     """Run directory written by `mjx-emp train`."""
     steps: int = 200
     """Primitive steps (frames) to record."""

@@ -25,6 +25,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from mjx_emp.algos.he.config import Phase2Config, check_phase2_config
+from mjx_emp.algos.registry import LATENT_SKILLS, skill_kind
 from mjx_emp.algos.skills.agent import SkillAgent, SkillState
 from mjx_emp.counters import StepCounter
 from mjx_emp.downstream import Phase2Loop, Phase2Trainer
@@ -176,7 +177,8 @@ _jit_init = jax.jit(FlatPhase2Trainer._init, static_argnums=0)
 
 
 def make_phase2_trainer(skills: Any, cfg: Phase2Config) -> Phase2Trainer | FlatPhase2Trainer:
-    """Phase 2 over any algorithm's skills: HE's and GCRL's goal spaces, or a flat learner's z."""
-    if isinstance(skills, SkillAgent):
+    """Phase 2 over any algorithm's skills, as its registry entry says they are: subgoals in
+    learnt goal spaces (HE, GCRL) or a flat learner's z."""
+    if skill_kind(skills.cfg) == LATENT_SKILLS:
         return FlatPhase2Trainer(skills, cfg)
     return Phase2Trainer(skills, cfg)

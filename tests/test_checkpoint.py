@@ -24,7 +24,8 @@ from mjx_emp.algos.he.agent import Trainer
 from mjx_emp.algos.registry import config_from_json
 from mjx_emp.errors import CheckpointError, CheckpointWriteError, TrainingDiverged
 from mjx_emp.run.checkpoint import Checkpoints, config_mismatches, layout_mismatch, layout_of, pack, unpack
-from mjx_emp.run.directory import keep_metrics_through, train_epochs
+from mjx_emp.run.loop import train_epochs
+from mjx_emp.run.store import keep_metrics_through
 
 
 def host_leaves(tree) -> list[np.ndarray]:

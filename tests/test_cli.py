@@ -19,7 +19,7 @@ def cli(*args: str) -> subprocess.CompletedProcess:
     [
         # tyro's own errors (in a box): the flag and the allowed choices
         (["rollout", "--env", "pointmass"], "invalid choice 'pointmass' for argument '--env'. Expected one of"),
-        (["train", "--resume", "/nonexistent/mjx-emp-run", "--seed", "3"], "Unrecognized options: --seed, 3"),
+        (["train", "--resume", "/nonexistent/mjx-emp-run", "--seed", "3"], "--seed (applied to mjx-emp resume)"),
         # ours: the field, the rule and the value given
         (["rollout", "--n", "20", "10", "--eps", "0.5"],
          "invalid configuration: n and eps: need one entry per level (k=2); got n=(20, 10), eps=(0.5,)"),
@@ -80,6 +80,36 @@ def test_bad_values_exit_2_with_the_whole_reason(args, message):
     result = cli(*args)
     assert result.returncode == 2, result.stderr
     assert message in result.stderr, result.stderr
+
+
+COMMAND_NAMES = ("train", "resume", "phase2", "presets", "eval", "plot", "render", "rollout")
+
+
+@pytest.mark.parametrize("args", [["--help"], ["trian"]])
+def test_help_and_a_typo_list_every_command(args):
+    result = cli(*args)
+    assert result.returncode == (0 if args == ["--help"] else 2)
+    listed = (result.stdout + result.stderr).replace("\n", " ")
+    for name in COMMAND_NAMES:
+        assert name in listed, name
+
+
+@pytest.mark.parametrize("args", [["eval", "--help"], ["plot", "--help"], ["render", "--help"], ["resume", "--help"],
+                                  ["phase2", "point-mass-k1", "--help"]])
+def test_run_directories_are_named_run_dir_in_help(args):
+    result = cli(*args)
+    assert result.returncode == 0, result.stderr
+    usage = result.stdout.split("\n\n")[0]
+    positional = [token for token in usage.split()[2:] if not token.startswith(("[", "-")) and not token.endswith("]")]
+    assert positional and all(token == "RUN_DIR" for token in positional[-1:]), usage
+
+
+def test_resume_forms_are_one_command(tmp_path):
+    from mjx_emp.cli import canonical_args
+
+    assert canonical_args(["train", "--resume", "r", "--epochs", "3"]) == ["resume", "r", "--epochs", "3"]
+    assert canonical_args(["phase2", "--epochs", "3", "--resume=r/phase2"]) == ["resume", "r/phase2", "--epochs", "3"]
+    assert canonical_args(["train", "point-mass-k1", "--epochs", "3"]) == ["train", "point-mass-k1", "--epochs", "3"]
 
 
 def test_help_explains_fields():

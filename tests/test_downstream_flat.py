@@ -16,7 +16,7 @@ from tiny import TINY_PHASE2, run_cli
 from mjx_emp.algos.skills.agent import SkillAgent
 from mjx_emp.commands import Phase2Experiment, ResumeExperiment, TrainExperiment
 from mjx_emp.downstream_flat import FlatPhase2Trainer, make_phase2_trainer
-from mjx_emp.run import directory as run
+from mjx_emp.run import jobs
 
 
 @pytest.fixture(scope="module")
@@ -53,11 +53,11 @@ def test_a_collect_plays_one_episode_per_env_with_at_most_n_attempts(metra_phase
 
 def test_flat_phase2_trains_resumes_bitwise_and_eval_reports_it(tmp_path):
     run_dir = tmp_path / "metra"
-    run.train(TrainExperiment(config=tiny("metra"), run_dir=str(run_dir)))
-    straight = run.train_phase2(Phase2Experiment(run_dir=str(run_dir), config=TINY_PHASE2, out=str(tmp_path / "a")))
-    run.train_phase2(Phase2Experiment(run_dir=str(run_dir), config=dataclasses.replace(TINY_PHASE2, epochs=1),
+    jobs.train(TrainExperiment(config=tiny("metra"), run_dir=str(run_dir)))
+    straight = jobs.train_phase2(Phase2Experiment(run_dir=str(run_dir), config=TINY_PHASE2, out=str(tmp_path / "a")))
+    jobs.train_phase2(Phase2Experiment(run_dir=str(run_dir), config=dataclasses.replace(TINY_PHASE2, epochs=1),
                                       out=str(tmp_path / "b")))
-    resumed = run.resume_phase2(ResumeExperiment(resume=str(tmp_path / "b"), epochs=TINY_PHASE2.epochs))
+    resumed = jobs.resume_phase2(ResumeExperiment(resume=str(tmp_path / "b"), epochs=TINY_PHASE2.epochs))
     assert_bitwise_equal(resumed, straight)
     lines = [json.loads(line) for line in (tmp_path / "a" / "metrics.jsonl").read_text().splitlines()]
     assert lines[-1]["critic_loss"] is not None and 0 <= lines[-1]["success"] <= 1

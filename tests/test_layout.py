@@ -21,10 +21,10 @@ LAYERS = [
     ["mjx_emp.algos.registry"],
     ["mjx_emp.downstream", "mjx_emp.downstream_flat"],
     ["mjx_emp.commands"],
-    ["mjx_emp.run.checkpoint", "mjx_emp.run.directory", "mjx_emp.run.evaluate", "mjx_emp.run.seeds",
-     "mjx_emp.run.devices", "mjx_emp.run.hosts", "mjx_emp.run.preflight"],
+    ["mjx_emp.run.checkpoint", "mjx_emp.run.store", "mjx_emp.run.loop", "mjx_emp.run.jobs", "mjx_emp.run.evaluate",
+     "mjx_emp.run.seeds", "mjx_emp.run.devices", "mjx_emp.run.hosts", "mjx_emp.run.preflight"],
     ["mjx_emp.viz.plots", "mjx_emp.viz.render"],
-    ["mjx_emp.cli"],
+    ["mjx_emp.cli", "mjx_emp.api"],
 ]
 LAYER_OF = {module: depth for depth, modules in enumerate(LAYERS) for module in modules}
 
@@ -63,6 +63,32 @@ def test_imports_only_go_down_the_layers():
         if LAYER_OF[target] > LAYER_OF[module_name(p)]
     ]
     assert not upward, upward
+
+
+def import_cycles() -> list[list[str]]:
+    """Every circle of imports among the package's modules (function-local imports included),
+    each as the list of modules it passes through."""
+    graph = {module_name(p): {target for target, _ in imports(p) if target in LAYER_OF and target != module_name(p)}
+             for p in package_modules()}
+    cycles, done = [], set()
+
+    def visit(module: str, path: list[str]) -> None:
+        if module in path:
+            cycles.append(path[path.index(module):] + [module])
+            return
+        if module in done:
+            return
+        for target in sorted(graph[module]):
+            visit(target, path + [module])
+        done.add(module)
+
+    for module in sorted(graph):
+        visit(module, [])
+    return cycles
+
+
+def test_no_two_modules_import_each_other_even_within_a_layer():
+    assert not import_cycles(), import_cycles()
 
 
 def test_no_module_imports_another_modules_private_names():

@@ -8,7 +8,16 @@ from tiny import TINY
 
 from mjx_emp.algos.he.config import TrainConfig
 from mjx_emp.algos.he.presets import PRESETS
-from mjx_emp.algos.registry import ALGORITHMS, algorithm_of, all_presets, config_from_json, config_to_json, make_agent
+from mjx_emp.algos.registry import (
+    ALGORITHMS,
+    GOAL_SPACES,
+    LATENT_SKILLS,
+    algorithm_of,
+    all_presets,
+    config_from_json,
+    config_to_json,
+    make_agent,
+)
 from mjx_emp.errors import ConfigError
 
 
@@ -56,3 +65,23 @@ def test_table_1_presets_keep_the_papers_learner_and_physics():
                       "solver_iterations", "integrator", "fresh_replay", "heading_frame"):
             assert getattr(cfg, field) == getattr(default, field), (name, field)
     assert PRESETS["ant-field-cpu-k1-her-ln"][1].her > 0 and PRESETS["ant-field-cpu-k1-her-ln"][1].critic_layer_norm
+
+
+ABILITIES = {GOAL_SPACES: ("goal_spaces", "evaluate", "skill_chain", "skill_paths"),
+             LATENT_SKILLS: ("skill_paths", "record_skills", "posterior_std")}
+
+
+@pytest.mark.parametrize("name", sorted(ALGORITHMS))
+def test_each_algorithms_agent_offers_what_its_kind_of_skills_promises(name):
+    """eval, plot, render and phase 2 ask the registry entry what the skills are, then call these."""
+    algorithm = ALGORITHMS[name]
+    cfg = next(cfg for _, cfg in algorithm.presets.values() if cfg.env == "point_mass")
+    agent = make_agent(cfg)
+    missing = [ability for ability in ABILITIES[algorithm.skills] if not callable(getattr(agent, ability, None))]
+    assert not missing, f"{name} ({algorithm.skills}) lacks {missing}"
+
+
+def test_an_unknown_kind_of_skills_is_refused():
+    he = ALGORITHMS["he"]
+    with pytest.raises(ValueError, match="skills: 'options' is unknown; allowed values"):
+        dataclasses.replace(he, skills="options")

@@ -11,7 +11,7 @@ from PIL import Image
 from tiny import SMALL, run_cli
 
 from mjx_emp.run import checkpoint
-from mjx_emp.run import directory as run
+from mjx_emp.run import jobs
 from mjx_emp.viz.render import Recording, first_skills, marker_position
 
 
@@ -77,8 +77,8 @@ def test_phase2_trains_on_the_runs_skills_and_resumes_exactly(trained_run, phase
     assert resumed.returncode == 0, resumed.stderr
 
     # Resumed at epoch 2, the run matches three straight epochs bit for bit.
-    trainer, epoch, state = run.load_phase2(phase2_run)
-    _, _, skills_state = run.load_run(trained_run)
+    trainer, epoch, state = jobs.load_phase2(phase2_run)
+    _, _, skills_state = jobs.load_run(trained_run)
     straight = trainer.init(skills_state)
     for _ in range(3):
         straight, _ = trainer.train_epoch(straight)

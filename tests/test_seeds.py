@@ -11,14 +11,14 @@ from test_skills import tiny
 from tiny import TINY, run_cli
 
 from mjx_emp.commands import ResumeExperiment, TrainExperiment
-from mjx_emp.run import directory as run
+from mjx_emp.run import jobs, store
 
 # Per-epoch figures that depend on wall time, not on what was computed.
 TIMING = {"seconds", "env_steps_per_s", "checkpoint_blocked_s"}
 
 
 def metric_lines(run_dir) -> list[dict]:
-    return [json.loads(line) for line in (run_dir / run.METRICS_FILE).read_text().splitlines() if line]
+    return [json.loads(line) for line in (run_dir / store.METRICS_FILE).read_text().splitlines() if line]
 
 
 def leaves(value, path: str = "") -> dict[str, object]:
@@ -44,16 +44,16 @@ def assert_same_metrics(mine: list[dict], theirs: list[dict]) -> None:
 
 @pytest.mark.parametrize("config", [dataclasses.replace(TINY, epochs=2), tiny("metra")], ids=["he", "metra"])
 def test_seeds_in_one_program_match_separate_runs_and_each_resumes_alone(config, tmp_path):
-    run.train(TrainExperiment(config=config, run_dir=str(tmp_path / "group"), seeds=(4, 9)))
+    jobs.train(TrainExperiment(config=config, run_dir=str(tmp_path / "group"), seeds=(4, 9)))
     for seed in (4, 9):
         alone = tmp_path / f"alone-{seed}"
-        run.train(TrainExperiment(config=dataclasses.replace(config, seed=seed), run_dir=str(alone)))
+        jobs.train(TrainExperiment(config=dataclasses.replace(config, seed=seed), run_dir=str(alone)))
         member = tmp_path / f"group-s{seed}"
-        assert run.read_run_config(member).seed == seed
+        assert store.read_run_config(member).seed == seed
         assert_same_metrics(metric_lines(member), metric_lines(alone))
     # a seed's directory is an ordinary run: it resumes on its own and goes on like the lone run
-    run.resume(ResumeExperiment(resume=str(tmp_path / "group-s9"), epochs=config.epochs + 1))
-    run.resume(ResumeExperiment(resume=str(tmp_path / "alone-9"), epochs=config.epochs + 1))
+    jobs.resume(ResumeExperiment(resume=str(tmp_path / "group-s9"), epochs=config.epochs + 1))
+    jobs.resume(ResumeExperiment(resume=str(tmp_path / "alone-9"), epochs=config.epochs + 1))
     assert_same_metrics(metric_lines(tmp_path / "group-s9"), metric_lines(tmp_path / "alone-9"))
 
 

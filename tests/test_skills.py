@@ -27,7 +27,7 @@ from mjx_emp.envs.env import make_env
 from mjx_emp.errors import ConfigError
 from mjx_emp.learners.sac import SAC, SACBatch, squashed_sample
 from mjx_emp.rollout.flat import flat_init, flat_rollout
-from mjx_emp.run import directory as run
+from mjx_emp.run import jobs
 
 TINY_SKILLS = dict(n=5, num_envs=8, collect_steps=5, iterations=2, grad_steps=3, batch_size=32,
                    replay_capacity=512, min_replay=40, hidden=(32,), epochs=3, seed=1)
@@ -138,9 +138,9 @@ def test_flat_rollout_holds_a_skill_for_n_actions_then_restarts():
 @pytest.mark.parametrize("method", sorted(METHODS) + ["gcrl"])
 def test_each_method_trains_stops_and_resumes_bitwise(method, tmp_path):
     cfg = tiny(method)
-    straight = run.train(TrainExperiment(config=cfg, run_dir=str(tmp_path / "straight")))
-    run.train(TrainExperiment(config=dataclasses.replace(cfg, epochs=2), run_dir=str(tmp_path / "stopped")))
-    resumed = run.resume(ResumeExperiment(resume=str(tmp_path / "stopped"), epochs=3))
+    straight = jobs.train(TrainExperiment(config=cfg, run_dir=str(tmp_path / "straight")))
+    jobs.train(TrainExperiment(config=dataclasses.replace(cfg, epochs=2), run_dir=str(tmp_path / "stopped")))
+    resumed = jobs.resume(ResumeExperiment(resume=str(tmp_path / "stopped"), epochs=3))
     assert_bitwise_equal(resumed, straight)
     lines = [json.loads(line) for line in (tmp_path / "stopped" / "metrics.jsonl").read_text().splitlines()]
     assert [m["epoch"] for m in lines] == [1, 2, 3]
@@ -165,14 +165,14 @@ def test_sigkill_then_resume_of_a_baseline_is_bitwise_identical(tmp_path):
     assert process.returncode == -signal.SIGKILL
     result = run_cli("train", "--resume", str(killed))
     assert result.returncode == 0, result.stderr
-    _, _, a = run.load_run(straight)
-    _, _, b = run.load_run(killed)
+    _, _, a = jobs.load_run(straight)
+    _, _, b = jobs.load_run(killed)
     assert_bitwise_equal(a, b)
 
 
 def test_eval_reports_coverage_and_posterior_std(tmp_path):
     cfg = tiny("diayn")
-    run.train(TrainExperiment(config=cfg, run_dir=str(tmp_path / "run")))
+    jobs.train(TrainExperiment(config=cfg, run_dir=str(tmp_path / "run")))
     result = run_cli("eval", str(tmp_path / "run"))
     assert result.returncode == 0, result.stderr
     report = json.loads((tmp_path / "run" / "eval.json").read_text())
@@ -222,7 +222,7 @@ def test_bad_skill_config_names_the_field(change, message):
 
 def test_plot_and_render_draw_a_flat_learners_run(tmp_path):
     run_dir = tmp_path / "metra"
-    run.train(TrainExperiment(config=tiny("metra"), run_dir=str(run_dir)))
+    jobs.train(TrainExperiment(config=tiny("metra"), run_dir=str(run_dir)))
     plotted = run_cli("plot", str(run_dir))
     assert plotted.returncode == 0, plotted.stderr
     names = ["skill_learning.png", "skills_epoch0.png", "skills.png"]

@@ -25,6 +25,16 @@ from mjx_emp.errors import ConfigError
 ALGORITHM_KEY = "algorithm"
 """The key of config.json that names the algorithm."""
 
+GOAL_SPACES = "goal_spaces"
+"""Skills of a learnt goal space: per level a box of goals and a goal-conditioned policy. Agents
+of this kind also offer ``goal_spaces``, ``evaluate``, ``skill_chain`` and ``skill_paths`` (see
+:class:`mjx_emp.algos.he.agent.Trainer`); phase 2 commands them with subgoals."""
+LATENT_SKILLS = "latent"
+"""Skills z drawn from a prior, each run for a fixed length. Agents of this kind also offer
+``skill_paths``, ``record_skills`` and ``posterior_std`` (see
+:class:`mjx_emp.algos.skills.agent.SkillAgent`); phase 2 commands them with z."""
+SKILL_KINDS = (GOAL_SPACES, LATENT_SKILLS)
+
 
 class Agent(Protocol):
     """The static side of an algorithm for one config: pure functions over its state pytree."""
@@ -63,6 +73,13 @@ class Algorithm:
     """(one shard's config, the axes its shards run along) -> agent."""
     shard_split: tuple[str, ...]
     """The config fields a shard of a split run takes its part of."""
+    skills: str
+    """What its skills are (one of :data:`SKILL_KINDS`): what eval, plot, render and phase 2 ask of
+    an algorithm, so that none of them looks at its name or type."""
+
+    def __post_init__(self):
+        if self.skills not in SKILL_KINDS:
+            raise ValueError(f"skills: {self.skills!r} is unknown; allowed values: {list(SKILL_KINDS)}")
 
 
 def _he_agent(cfg: TrainConfig, shard_axes: tuple[str, ...]) -> Agent:
@@ -79,12 +96,12 @@ def _skill_agent(cfg: Any, shard_axes: tuple[str, ...]) -> Agent:
 
 def _skill_algorithm(name: str, config_type: type) -> Algorithm:
     presets = {preset: entry for preset, entry in SKILL_PRESETS.items() if preset.startswith(f"{name}-")}
-    return Algorithm(name, config_type, check_skill_config, presets, _skill_agent, SKILL_SHARD_SPLIT)
+    return Algorithm(name, config_type, check_skill_config, presets, _skill_agent, SKILL_SHARD_SPLIT, LATENT_SKILLS)
 
 
 ALGORITHMS: dict[str, Algorithm] = {
-    "he": Algorithm("he", TrainConfig, check_train_config, HE_PRESETS, _he_agent, HE_SHARD_SPLIT),
-    "gcrl": Algorithm("gcrl", GcrlConfig, check_gcrl_config, GCRL_PRESETS, _he_agent, HE_SHARD_SPLIT),
+    "he": Algorithm("he", TrainConfig, check_train_config, HE_PRESETS, _he_agent, HE_SHARD_SPLIT, GOAL_SPACES),
+    "gcrl": Algorithm("gcrl", GcrlConfig, check_gcrl_config, GCRL_PRESETS, _he_agent, HE_SHARD_SPLIT, GOAL_SPACES),
     "diayn": _skill_algorithm("diayn", DiaynConfig),
     "hidio": _skill_algorithm("hidio", HidioConfig),
     "dads": _skill_algorithm("dads", DadsConfig),
@@ -98,6 +115,11 @@ def algorithm_of(cfg: Any) -> Algorithm:
         if type(cfg) is algorithm.config_type:
             return algorithm
     raise ConfigError(f"config: a {type(cfg).__name__} belongs to no algorithm; known: {sorted(ALGORITHMS)}")
+
+
+def skill_kind(cfg: Any) -> str:
+    """What the skills of ``cfg``'s algorithm are: one of :data:`SKILL_KINDS`."""
+    return algorithm_of(cfg).skills
 
 
 def config_to_json(cfg: Any) -> dict[str, Any]:

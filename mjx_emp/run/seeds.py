@@ -21,7 +21,7 @@ import jax.numpy as jnp
 from mjx_emp.algos.registry import algorithm_of, make_agent
 from mjx_emp.commands import TrainExperiment
 from mjx_emp.errors import ConfigError
-from mjx_emp.run import directory as run
+from mjx_emp.run import loop, store
 
 
 @dataclasses.dataclass(frozen=True)
@@ -86,12 +86,12 @@ def train_seeds(exp: TrainExperiment) -> Any:
                           f"num_devices={exp.num_devices}")
     if exp.keep_checkpoints < 1:
         raise ConfigError(f"keep_checkpoints: must be >= 1; got {exp.keep_checkpoints}")
-    base = exp.run_dir or run.default_run_dir(exp.config)
-    dirs = [run.fresh_run_dir(path, "run_dir", "a run", "mjx-emp train") for path in seed_run_dirs(base, exp.seeds)]
+    base = exp.run_dir or store.default_run_dir(exp.config)
+    dirs = [store.fresh_run_dir(path, "run_dir", "a run", "mjx-emp train") for path in seed_run_dirs(base, exp.seeds)]
     print(f"run directories: {', '.join(str(d) for d in dirs)}", flush=True)
     with contextlib.ExitStack() as locks:
         for run_dir in dirs:
-            locks.enter_context(run.run_lock(run_dir, "run_dir"))
+            locks.enter_context(store.run_lock(run_dir, "run_dir"))
         return _train_group(exp, algorithm, dirs)
 
 
@@ -103,13 +103,13 @@ def _train_group(exp: TrainExperiment, algorithm, dirs: list[Path]) -> Any:
     state = group.init()
     members = []
     for agent, run_dir, (seed_state, _) in zip(agents, dirs, group.split(state, None)):
-        run.write_config(run_dir, agent.cfg)
+        store.write_config(run_dir, agent.cfg)
         checkpoints = Checkpoints(run_dir, exp.keep_checkpoints, algorithm.config_type)
         checkpoints.save(0, seed_state, agent.cfg)
-        members.append(run.Member(agent, checkpoints, Path(run_dir)))
+        members.append(loop.Member(agent, checkpoints, Path(run_dir)))
     try:
-        with run.progress_reporter(exp.config.epochs, 0, agents[0].describe) as report:
-            return run.train_members(group, state, members, report, group.split)
+        with loop.progress_reporter(exp.config.epochs, 0, agents[0].describe) as report:
+            return loop.train_members(group, state, members, report, group.split)
     finally:
         for member in members:
             member.checkpoints.close()

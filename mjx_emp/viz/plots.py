@@ -5,18 +5,12 @@ curves and the paths of the greedy skills that METRA's coverage count reads."""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 
-from mjx_emp.run.directory import METRICS_FILE
-
-
-def read_metrics(run_dir: Path) -> list[dict]:
-    """The per-epoch metric lines of a run directory, in order."""
-    path = Path(run_dir) / METRICS_FILE
-    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+from mjx_emp.algos.registry import GOAL_SPACES, LATENT_SKILLS
+from mjx_emp.run.store import METRICS_FILE, read_metrics, run_skill_kind
 
 
 def _pyplot():
@@ -156,7 +150,7 @@ def plot_run(run_dir: Path, chains: int = 8, skills_per_chain: int = 1) -> list[
     import jax
 
     from mjx_emp.run.checkpoint import CHECKPOINT_SUBDIR
-    from mjx_emp.run.directory import load_run
+    from mjx_emp.run.jobs import load_run
     from mjx_emp.viz.render import first_skills, record_rollout
 
     run_dir = Path(run_dir)
@@ -181,7 +175,7 @@ def plot_run(run_dir: Path, chains: int = 8, skills_per_chain: int = 1) -> list[
 def _phase2_plot(run_dir: Path) -> list[Path]:
     """RUN_DIR/phase2's learning curves as RUN_DIR/plots/phase2_curves.png, if it has any."""
     from mjx_emp.algos.he.config import Phase2Config
-    from mjx_emp.run.directory import PHASE2_SUBDIR, read_run_config
+    from mjx_emp.run.store import PHASE2_SUBDIR, read_run_config
 
     phase2_dir = run_dir / PHASE2_SUBDIR
     phase2_metrics = read_metrics(phase2_dir) if (phase2_dir / METRICS_FILE).exists() else []
@@ -202,7 +196,7 @@ def plot_skill_run(run_dir: Path, skills: int = 48) -> list[Path]:
 
     from mjx_emp.metrics import coverage_cells
     from mjx_emp.run.checkpoint import CHECKPOINT_SUBDIR
-    from mjx_emp.run.directory import load_run
+    from mjx_emp.run.jobs import load_run
 
     run_dir = Path(run_dir)
     paths = [plot_skill_learning(read_metrics(run_dir), run_dir / "plots" / "skill_learning.png")]
@@ -218,3 +212,10 @@ def plot_skill_run(run_dir: Path, skills: int = 48) -> list[Path]:
                  f"{coverage_cells(positions, mask)} cells")
         paths.append(plot_goal_space_boxes(start, [], trajectories, run_dir / "plots" / name, title=title))
     return paths
+
+
+def plot_any_run(run_dir: Path) -> list[Path]:
+    """Every picture of a run directory of any algorithm, as its registry entry's kind of skills
+    calls for (:func:`plot_run` for goal spaces, :func:`plot_skill_run` for latent skills)."""
+    draw = {GOAL_SPACES: plot_run, LATENT_SKILLS: plot_skill_run}[run_skill_kind(Path(run_dir))]
+    return draw(Path(run_dir))

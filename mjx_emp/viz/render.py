@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from mjx_emp.algos.registry import GOAL_SPACES, skill_kind
 from mjx_emp.errors import RenderError
 
 if TYPE_CHECKING:  # importing the rollout imports mujoco, which must wait for configure_headless_gl
@@ -66,6 +67,16 @@ def record_rollout(plan: RolloutPlan, key, steps: int) -> Recording:
         mocap.append(np.asarray(data.mocap_pos[0]))
         goals.append(np.stack([np.asarray(g[0]) for g in rollout_state.goals[: plan.levels_with_goals]]))
     return Recording(np.stack(qpos), np.stack(mocap), np.stack(goals))
+
+
+def skill_recording(agent, state, key, steps: int) -> Recording:
+    """``steps`` primitive steps of an agent's greedy skills from the initial state, as its
+    registry entry's kind of skills calls for: the chain of top-level skills, every level's goal
+    recorded, for goal spaces; skills z from the prior one after another (no goals) otherwise."""
+    if skill_kind(agent.cfg) == GOAL_SPACES:
+        return record_rollout(agent.skill_chain(state), key, steps)
+    qpos, mocap = agent.record_skills(state, key, steps)
+    return Recording(qpos, mocap, np.zeros((steps, 0, len(agent.env.goal_qpos))))
 
 
 def first_skills(recording: Recording, skills: int) -> Recording:

@@ -18,6 +18,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+from collections.abc import Callable
 from typing import Any
 
 import jax
@@ -30,6 +31,7 @@ from mjx_emp import gce
 from mjx_emp.algos.he.config import GcrlConfig, TrainConfig, check_gcrl_config, check_train_config
 from mjx_emp.counters import StepCounter
 from mjx_emp.envs.env import Env, make_env
+from mjx_emp.errors import ConfigError
 from mjx_emp.learners.common import actor_critic_step, all_finite
 from mjx_emp.learners.ddpg import (
     Backup,
@@ -332,6 +334,14 @@ class Trainer:
         k = self.cfg.k
         params, start_params = self.rollout_inputs(state, jnp.int32(k), jnp.int32(MODE_STARTS))
         return RolloutPlan(self.hierarchy, params, self.start, start_params, root=k)
+
+    def greedy_policy(self, state: TrainState, level: int = 0) -> Callable[[jax.Array, jax.Array], jax.Array]:
+        """``level``'s greedy goal-conditioned policy, (obs [B, obs], goal [B, goal]) -> action: a
+        primitive action at level 0, a subgoal offset from h(obs) above (goals are absolute)."""
+        if not 0 <= level < self.cfg.k:
+            raise ConfigError(f"level: must be in 0..{self.cfg.k - 1} (k={self.cfg.k}); got {level}")
+        box = None if level == 0 else state.goal_spaces[level - 1].actor
+        return greedy_batch(self.hierarchy.policies[level], state.policies[level].actor, box)
 
     def start(self, start_params: StartParams, key: jax.Array):
         """A new episode at level ``start_params.root``: s0 from its start buffer, z from its noisy box.

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+from collections.abc import Callable
 from typing import Any
 
 import jax
@@ -175,6 +176,12 @@ class SkillAgent:
         """The deterministic policy tanh(mean) (evaluation)."""
         del key
         return self.sac.greedy(actor, self.policy_input(obs, s0, skill))
+
+    def greedy_policy(self, state: SkillState) -> Callable[[jax.Array, jax.Array, jax.Array], jax.Array]:
+        """The greedy skill-conditioned policy, (obs [B, obs], s0 [B, obs], skill [B, d]) -> action:
+        ``s0`` is the observation where the skill began (its descriptor counts from there)."""
+        actor = state.sac.actor
+        return jax.vmap(lambda obs, s0, skill: self.greedy(actor, obs, s0, skill, None))
 
     # ---- state ----------------------------------------------------------------------
     @functools.cached_property

@@ -1,0 +1,97 @@
+"""The library from Python: presets, training with a progress callback, loading a run, greedy policies.
+
+Everything here goes through the same run layer as the ``mjx-emp`` command, so a run trained
+from a notebook is a run directory like any other (config.json, metrics.jsonl, checkpoints)
+that ``mjx-emp eval``, ``plot``, ``render`` and ``resume`` accept, and the other way round.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from mjx_emp.algos.registry import GOAL_SPACES, algorithm_of, all_presets, skill_kind
+from mjx_emp.commands import TrainExperiment
+from mjx_emp.errors import ConfigError
+from mjx_emp.run import jobs, store
+
+
+@dataclasses.dataclass(frozen=True)
+class Run:
+    """A run directory's agent (pure functions of the algorithm), its newest state, that state's
+    epoch, the per-epoch metrics written so far and the directory."""
+
+    agent: Any
+    state: Any
+    epoch: int
+    metrics: list[dict]
+    run_dir: Path
+
+    @property
+    def config(self) -> Any:
+        """The run's config dataclass."""
+        return self.agent.cfg
+
+    @property
+    def algorithm(self) -> str:
+        """The registry name of the run's algorithm (he, gcrl, diayn, hidio, dads, metra)."""
+        return algorithm_of(self.agent.cfg).name
+
+    @property
+    def skills(self) -> str:
+        """What the skills are: ``registry.GOAL_SPACES`` or ``registry.LATENT_SKILLS``."""
+        return skill_kind(self.agent.cfg)
+
+    def greedy_policy(self, level: int = 0) -> Callable[..., Any]:
+        """The greedy policy over a batch. Goal spaces (HE, GCRL): (obs, goal) -> action of
+        ``level`` (a primitive action at 0, a subgoal offset above). Latent skills: (obs, s0,
+        skill) -> primitive action, ``s0`` the observation where the skill began."""
+        if self.skills == GOAL_SPACES:
+            return self.agent.greedy_policy(self.state, level)
+        if level != 0:
+            raise ConfigError(f"level: {self.algorithm} has one level of skills; got {level}")
+        return self.agent.greedy_policy(self.state)
+
+
+def presets() -> dict[str, Any]:
+    """Every preset of every algorithm by name: its config (``mjx-emp presets`` lists them too)."""
+    return {name: cfg for name, (_, cfg) in all_presets().items()}
+
+
+def config(preset: str, **changes: Any) -> Any:
+    """PRESET's config with the named fields replaced, e.g. ``config("point-mass-k1", epochs=5)``."""
+    known = presets()
+    if preset not in known:
+        raise ConfigError(f"preset: {preset!r} is unknown; allowed values: {sorted(known)}")
+    cfg = known[preset]
+    fields = {field.name for field in dataclasses.fields(cfg)}
+    unknown = sorted(set(changes) - fields)
+    if unknown:
+        raise ConfigError(f"{unknown[0]}: not a field of {type(cfg).__name__}; fields: {sorted(fields)}")
+    cfg = dataclasses.replace(cfg, **changes)
+    algorithm_of(cfg).check(cfg)
+    return cfg
+
+
+def train(cfg: Any, run_dir: str | Path = "", *, on_epoch: Callable[[dict], None] | None = None,
+          keep_checkpoints: int = 3) -> Run:
+    """Train a new run of ``cfg`` (a config, or a preset name) in ``run_dir`` (empty: a fresh
+    runs/... name), handing each epoch's metrics line to ``on_epoch``; returns the finished run.
+
+    The run is written and checkpointed as ``mjx-emp train`` writes it; a config error raises
+    :class:`~mjx_emp.errors.ConfigError` before anything is written.
+    """
+    if isinstance(cfg, str):
+        cfg = config(cfg)
+    run_dir = str(run_dir) or store.default_run_dir(cfg)
+    jobs.train(TrainExperiment(config=cfg, run_dir=run_dir, keep_checkpoints=keep_checkpoints), on_epoch=on_epoch)
+    return load(run_dir)
+
+
+def load(run_dir: str | Path, epoch: int | None = None) -> Run:
+    """A run directory's agent and its newest good checkpoint (or ``epoch``'s), with its metrics."""
+    run_dir = Path(run_dir)
+    agent, restored, state = jobs.load_run(run_dir, epoch=epoch)
+    return Run(agent, state, restored, store.read_metrics(run_dir), run_dir)

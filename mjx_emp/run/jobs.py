@@ -1,0 +1,235 @@
+"""What the commands do with a run directory: train a new run, resume one, train phase 2 on a
+run's skills, and load a run's agent and newest good checkpoint. Each command checks its
+request once, where it starts.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import json
+from collections.abc import Callable
+from pathlib import Path
+
+from mjx_emp.algos.he.config import Phase2Config, check_phase2_config
+from mjx_emp.algos.registry import (
+    algorithm_of,
+    make_agent,
+)
+from mjx_emp.commands import Phase2Experiment, ResumeExperiment, TrainExperiment
+from mjx_emp.errors import ConfigError
+from mjx_emp.run.loop import train_to_the_end
+from mjx_emp.run.store import (
+    CONFIG_FILE,
+    METRICS_FILE,
+    PHASE2_SUBDIR,
+    SKILLS_FILE,
+    config_json,
+    default_run_dir,
+    fresh_run_dir,
+    keep_metrics_through,
+    read_run_config,
+    run_lock,
+    write_atomically,
+    write_config,
+)
+
+
+def _check_keep(keep_checkpoints: int) -> None:
+    if keep_checkpoints < 1:
+        raise ConfigError(f"keep_checkpoints: must be >= 1; got {keep_checkpoints}")
+
+
+def _train_new(trainer, state, run_dir: Path, keep_checkpoints: int, config_type: type,
+               on_epoch: Callable[[dict], None] | None = None):
+    """Write the config, checkpoint ``state`` as epoch 0, and train to the end (with several
+    hosts, the lead writes)."""
+    from mjx_emp.run.checkpoint import Checkpoints
+    from mjx_emp.run.hosts import gather_to_host, is_lead
+
+    if is_lead():
+        write_config(run_dir, trainer.cfg)
+    checkpoints = Checkpoints(run_dir, keep_checkpoints, config_type)
+    checkpoints.save(0, gather_to_host(state), trainer.cfg)
+    return train_to_the_end(trainer, state, checkpoints, run_dir, on_epoch)
+
+
+def training_program(cfg, num_devices: int = 0):
+    """What trains a run of ``cfg``: its agent, or for a run split into shards a
+    :class:`~mjx_emp.run.devices.ShardedAgent` over ``num_devices`` local devices (0: as
+    many as divide the shards)."""
+    if cfg.shards == 1 and num_devices <= 1:
+        return make_agent(cfg)
+    from mjx_emp.run.devices import ShardedAgent, choose_devices
+
+    return ShardedAgent(cfg, choose_devices(cfg.shards, num_devices))
+
+
+def split_for_devices(cfg, num_devices: int):
+    """A new run's config with its shards set from ``--num-devices``: an unsplit config
+    becomes one shard per device (``num_devices`` 0: every local device); a config that
+    sets its shards keeps them."""
+    if cfg.shards > 1:
+        return cfg
+    if num_devices == 0:
+        import jax
+
+        num_devices = jax.device_count()  # every device of every process
+    return dataclasses.replace(cfg, shards=num_devices) if num_devices > 1 else cfg
+
+
+def train(exp: TrainExperiment, on_epoch: Callable[[dict], None] | None = None):
+    """Train a new run of the config's algorithm (with ``exp.seeds``, one run per seed under one
+    vmap: :mod:`mjx_emp.run.seeds`; split over devices per ``exp.num_devices``: :mod:`mjx_emp.run.devices`);
+    returns the final state. ``on_epoch`` (one run, not a seed group) sees each epoch's metrics."""
+    from mjx_emp.run.hosts import join_hosts, wait_for_all
+
+    several = join_hosts(exp.coordinator_address, exp.num_processes, exp.process_id)
+    if exp.seeds:
+        if several:
+            raise ConfigError("seeds: a seed group trains in one process; drop --seeds or the coordinator")
+        if on_epoch is not None:
+            raise ConfigError("seeds: a progress callback follows one run; train the seeds one by one")
+        from mjx_emp.run.seeds import train_seeds
+
+        return train_seeds(exp)
+    algorithm = algorithm_of(exp.config)
+    algorithm.check(exp.config)
+    _check_keep(exp.keep_checkpoints)
+    cfg = split_for_devices(exp.config, exp.num_devices)
+    algorithm.check(cfg)
+    if several and not exp.run_dir:
+        raise ConfigError("run_dir: several hosts must be given the same --run-dir (on a shared filesystem)")
+    trainer = training_program(cfg, exp.num_devices)
+    check_memory(trainer)  # before anything is allocated or written
+    run_dir = fresh_run_dir(exp.run_dir or default_run_dir(cfg), "run_dir", "a run", "mjx-emp train")
+    wait_for_all("mjx-emp: every process checked the run directory")  # before the lead writes into it
+    print(f"run directory: {run_dir}", flush=True)
+    with run_lock(run_dir, "run_dir"):
+        if cfg.shards > 1:
+            print(f"split into {cfg.shards} shards on {trainer.num_devices} device(s)", flush=True)
+        return _train_new(trainer, trainer.init(), run_dir, exp.keep_checkpoints, algorithm.config_type, on_epoch)
+
+
+def check_memory(program) -> None:
+    """The memory preflight (:mod:`mjx_emp.run.preflight`) of what trains a run, before it allocates."""
+    from mjx_emp.run.preflight import preflight
+
+    agent = getattr(program, "alone", program)  # a split run: one shard's agent sees the environment
+    preflight(program, program.cfg, agent.env.obs_size, getattr(program, "num_devices", 1))
+
+
+def _restore(run_dir: Path, trainer, template, fallback: bool = False, epoch: int | None = None):
+    """``(epoch, state)`` of ``run_dir``'s newest good checkpoint, or of ``epoch``'s, for ``trainer``."""
+    from mjx_emp.run.checkpoint import Checkpoints
+
+    with Checkpoints(run_dir, config_type=type(trainer.cfg)) as checkpoints:
+        if epoch is None:
+            return checkpoints.restore_latest(template, trainer.cfg, fallback)
+        if epoch not in checkpoints.epochs():
+            raise ConfigError(f"phase1_epoch: {run_dir} has checkpoints of epochs {checkpoints.epochs()}; got {epoch}")
+        return epoch, checkpoints.restore(epoch, template, trainer.cfg)
+
+
+def _with_epochs(cfg, epochs: int | None):
+    """``cfg`` with its epoch count replaced (the one setting a resume may change), if given."""
+    return cfg if epochs is None else dataclasses.replace(cfg, epochs=epochs)
+
+
+def load_run(run_dir: Path, fallback: bool = False, epochs: int | None = None, field: str = "run_dir",
+             epoch: int | None = None):
+    """A run's agent and its newest good checkpoint (or ``epoch``'s): ``(agent, epoch, state)``.
+
+    ``epochs`` replaces the run's epoch count; ``field`` is the CLI field that errors about
+    ``run_dir`` name.
+    """
+    import jax
+
+    cfg = _with_epochs(read_run_config(Path(run_dir), field), epochs)
+    if cfg.shards > 1:  # a split run: shard 0's state (its networks are every shard's) and agent
+        from mjx_emp.run.devices import ShardedAgent, shard_slice
+
+        program = ShardedAgent(cfg, 1)
+        epoch, state = _restore(Path(run_dir), program, jax.eval_shape(program.init), fallback, epoch)
+        return program.alone, epoch, shard_slice(state, 0)
+    trainer = make_agent(cfg)
+    epoch, state = _restore(Path(run_dir), trainer, jax.eval_shape(trainer.init), fallback, epoch)
+    return trainer, epoch, state
+
+
+def load_program(run_dir: Path, fallback: bool = False, epochs: int | None = None, field: str = "resume",
+                 num_devices: int = 0):
+    """What trains a run on (see :func:`training_program`) and its newest good checkpoint,
+    placed on the program's devices: ``(program, epoch, state)``."""
+    import jax
+
+    program = training_program(_with_epochs(read_run_config(Path(run_dir), field), epochs), num_devices)
+    epoch, state = _restore(Path(run_dir), program, jax.eval_shape(program.init), fallback)
+    return program, epoch, (program.place(state) if hasattr(program, "place") else state)
+
+
+def _resume(exp: ResumeExperiment, load: Callable):
+    """Continue a run directory from its newest good checkpoint (``load`` restores it)."""
+    _check_keep(exp.keep_checkpoints)
+    run_dir = Path(exp.resume)
+    if not (run_dir / CONFIG_FILE).exists():  # a directory that is no run is refused before anything is written
+        raise ConfigError(f"resume: {str(run_dir)!r} has no {CONFIG_FILE}; is it a run directory?")
+    with run_lock(run_dir, "resume"):
+        trainer, epoch, state = load(run_dir, exp.fallback, exp.epochs, field="resume")
+        from mjx_emp.run.checkpoint import Checkpoints
+
+        print(f"resuming {run_dir} from epoch {epoch}", flush=True)
+        keep_metrics_through(run_dir / METRICS_FILE, epoch)
+        write_config(run_dir, trainer.cfg)
+        checkpoints = Checkpoints(run_dir, exp.keep_checkpoints, type(trainer.cfg))
+        return train_to_the_end(trainer, state, checkpoints, run_dir)
+
+
+def resume(exp: ResumeExperiment):
+    """Continue a run directory from its newest good checkpoint: a phase-2 directory (it holds
+    skills.json) as :func:`resume_phase2` does, a phase-1 run on ``exp.num_devices`` devices
+    otherwise; returns the final state."""
+    if (Path(exp.resume) / SKILLS_FILE).exists():
+        return resume_phase2(exp)
+    return _resume(exp, functools.partial(load_program, num_devices=exp.num_devices))
+
+
+def train_phase2(exp: Phase2Experiment):
+    """Train phase 2 on a phase-1 run's skills in a new phase-2 directory; returns the final state."""
+    check_phase2_config(exp.config)
+    _check_keep(exp.keep_checkpoints)
+    if not exp.run_dir:
+        raise ConfigError("run_dir: give the phase-1 run directory, e.g. `mjx-emp phase2 runs/pm1`")
+    from mjx_emp.downstream_flat import make_phase2_trainer
+
+    requested = None if exp.config.phase1_epoch < 0 else exp.config.phase1_epoch
+    skills, epoch, skills_state = load_run(Path(exp.run_dir), field="run_dir", epoch=requested)
+    cfg = dataclasses.replace(exp.config, phase1_epoch=epoch)
+    trainer = make_phase2_trainer(skills, cfg)
+    out = fresh_run_dir(exp.out or str(Path(exp.run_dir) / PHASE2_SUBDIR), "out", "a phase-2 run", "mjx-emp phase2")
+    with run_lock(out, "out"):
+        print(f"phase 2 on the skills of {exp.run_dir} (epoch {epoch}), writing to {out}", flush=True)
+        write_atomically(out / SKILLS_FILE, json.dumps(config_json(skills.cfg), indent=1))
+        return _train_new(trainer, trainer.init(skills_state), out, exp.keep_checkpoints, Phase2Config)
+
+
+def load_phase2(phase2_dir: Path, fallback: bool = False, epochs: int | None = None, field: str = "run_dir"):
+    """A phase-2 directory's trainer and newest good checkpoint: ``(trainer, epoch, state)``.
+
+    The directory stands on its own: it holds the phase-1 config and the frozen skills.
+    """
+    import jax
+
+    from mjx_emp.downstream_flat import make_phase2_trainer
+
+    phase2_dir = Path(phase2_dir)
+    cfg = _with_epochs(read_run_config(phase2_dir, field, Phase2Config), epochs)
+    trainer = make_phase2_trainer(make_agent(read_run_config(phase2_dir, field, file=SKILLS_FILE)), cfg)
+    template = jax.eval_shape(trainer.init, jax.eval_shape(trainer.phase1.init))
+    epoch, state = _restore(phase2_dir, trainer, template, fallback)
+    return trainer, epoch, state
+
+
+def resume_phase2(exp: ResumeExperiment):
+    """Continue a phase-2 directory from its newest good checkpoint; returns the final state."""
+    return _resume(exp, load_phase2)

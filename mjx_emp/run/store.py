@@ -1,0 +1,193 @@
+"""A run directory on disk: its layout, its lock, and the config and metrics files in it.
+
+Layout of RUN_DIR: ``config.json`` (the resolved config and its algorithm), ``metrics.jsonl`` (one JSON
+line per finished epoch) and ``checkpoints/<epoch>/`` (orbax, :mod:`mjx_emp.run.checkpoint`; epoch 0
+is the initial state). A phase-2 directory (by default RUN_DIR/phase2) has the same layout with a
+Phase2Config, plus ``skills.json``, the phase-1 config of the skills it builds on.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import json
+import os
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+from mjx_emp.algos.he.config import Phase2Config
+from mjx_emp.algos.registry import (
+    GOAL_SPACES,
+    algorithm_of,
+    config_from_json,
+    config_to_json,
+    skill_kind,
+)
+from mjx_emp.checks import config_from_dict
+from mjx_emp.errors import ConfigError
+
+CONFIG_FILE = "config.json"
+
+
+METRICS_FILE = "metrics.jsonl"
+
+
+PHASE2_SUBDIR = "phase2"
+
+
+SKILLS_FILE = "skills.json"
+"""In a phase-2 directory: the phase-1 config of the skills it builds on."""
+
+
+def default_run_dir(cfg) -> str:
+    """A fresh run directory name: runs/<env>-k<k>-<date>-<time> for HE, runs/<algorithm>-<env>-<date>-<time>
+    for the others."""
+    stamp = time.strftime('%Y%m%d-%H%M%S')
+    name = algorithm_of(cfg).name
+    return f"runs/{cfg.env}-k{cfg.k}-{stamp}" if name == "he" else f"runs/{name}-{cfg.env}-k{cfg.k}-{stamp}"
+
+
+def prepare_run_dir(path: str, field: str = "run_dir") -> Path:
+    """Create the run directory, or fail with a ConfigError naming ``field``."""
+    run_dir = Path(path)
+    try:
+        run_dir.mkdir(parents=True, exist_ok=True)
+        probe = run_dir / f".write-test-{os.getpid()}"  # one per process: several hosts may probe at once
+        probe.write_text("")
+        probe.unlink()
+    except OSError as err:
+        raise ConfigError(f"{field}: cannot write to {str(run_dir)!r} ({err.strerror})") from err
+    return run_dir
+
+
+def write_atomically(path: Path, text: str) -> None:
+    """Replace ``path`` with ``text`` so that a reader (or a crash) sees the old or the new file."""
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "w") as f:
+        f.write(text)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+def read_run_config(run_dir: Path, field: str = "resume", config_type: type | None = None,
+                    file: str = CONFIG_FILE):
+    """The config saved in a run directory; errors name the file and the CLI ``field``.
+
+    Without ``config_type`` the file holds an algorithm's config, which names its algorithm
+    (see :mod:`mjx_emp.algos.registry`); phase-2 directories pass ``Phase2Config``.
+    """
+    path = run_dir / file
+    try:
+        values = json.loads(path.read_text())
+        return config_from_json(values) if config_type is None else config_from_dict(values, config_type)
+    except FileNotFoundError as err:
+        raise ConfigError(f"{field}: {str(run_dir)!r} has no {file}; is it a run directory?") from err
+    except (json.JSONDecodeError, TypeError, ConfigError) as err:
+        raise ConfigError(f"{field}: {path} is not a valid run config ({err})") from err
+
+
+def read_metrics(run_dir: Path) -> list[dict]:
+    """The per-epoch metric lines of a run directory, in order."""
+    path = Path(run_dir) / METRICS_FILE
+    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+
+
+def keep_metrics_through(path: Path, epoch: int) -> None:
+    """Drop metric lines of epochs after ``epoch`` (written after the checkpoint we resume from)."""
+    if not path.exists():
+        return
+    lines = [line for line in path.read_text().splitlines() if line.strip()]
+    kept = []
+    for line in lines:
+        try:
+            if json.loads(line)["epoch"] <= epoch:
+                kept.append(line)
+        except (json.JSONDecodeError, KeyError):
+            break  # a line cut short by a kill: nothing after it is trustworthy
+    write_atomically(path, "".join(line + "\n" for line in kept))
+
+
+def _holds_a_run(run_dir: Path) -> bool:
+    from mjx_emp.run.checkpoint import CHECKPOINT_SUBDIR
+
+    return (run_dir / METRICS_FILE).exists() or (run_dir / CHECKPOINT_SUBDIR).exists()
+
+
+LOCK_FILE = ".lock"
+"""In a run directory while a process trains it: that process's id and host (flock-ed)."""
+
+
+@contextlib.contextmanager
+def run_lock(run_dir: Path, field: str) -> Iterator[None]:
+    """Hold RUN_DIR/.lock while a command writes the run: a second writer (train, resume, phase
+    2) is refused with a ConfigError naming the process that holds it. The lock is the
+    kernel's (``flock``), so it goes with its process however that ends; a lock file left by a
+    killed process is taken over with a note. With several hosts only the lead locks."""
+    import fcntl
+    import socket
+
+    from mjx_emp.run.hosts import is_lead
+
+    if not is_lead():
+        yield
+        return
+    path = Path(run_dir) / LOCK_FILE
+    handle = open(path, "a+")
+    try:
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            handle.seek(0)
+            holder = handle.read().strip() or "unknown"
+            raise ConfigError(f"{field}: {str(run_dir)!r} is in use by process {holder} (lock {path}); wait for it "
+                              f"to end or stop it") from None
+        handle.seek(0)
+        left = handle.read().strip()
+        if left:
+            print(f"note: taking over the lock of {run_dir} left by process {left}, which no longer holds it",
+                  flush=True)
+        handle.seek(0)
+        handle.truncate()
+        handle.write(f"{os.getpid()} on {socket.gethostname()}\n")
+        handle.flush()
+        try:
+            yield
+        finally:
+            handle.seek(0)
+            handle.truncate()  # an empty lock file: released on purpose, nothing to take over
+            handle.flush()
+            fcntl.flock(handle, fcntl.LOCK_UN)
+    finally:
+        handle.close()
+
+
+def fresh_run_dir(path: str, field: str, what: str, command: str) -> Path:
+    """Create the directory of a new run; one that already holds ``what`` is refused, naming ``field``."""
+    run_dir = prepare_run_dir(path, field)
+    if _holds_a_run(run_dir):
+        raise ConfigError(
+            f"{field}: {str(run_dir)!r} already holds {what}; continue it with "
+            f"`{command} --resume {run_dir}` or choose another --{field.replace('_', '-')}"
+        )
+    return run_dir
+
+
+def config_json(cfg) -> dict:
+    """config.json's form of ``cfg``: an algorithm's config records its algorithm; a phase-2
+    config is its fields alone."""
+    return dataclasses.asdict(cfg) if isinstance(cfg, Phase2Config) else config_to_json(cfg)
+
+
+def write_config(run_dir: Path, cfg) -> None:
+    """RUN_DIR/config.json of ``cfg`` (see :func:`config_json`), written atomically."""
+    write_atomically(Path(run_dir) / CONFIG_FILE, json.dumps(config_json(cfg), indent=1))
+
+
+def run_skill_kind(run_dir: Path, field: str = "run_dir") -> str:
+    """What the skills of RUN_DIR's algorithm are (``registry.SKILL_KINDS``); a directory without
+    config.json counts as goal spaces, left to the command to say what it lacks."""
+    if not (Path(run_dir) / CONFIG_FILE).exists():
+        return GOAL_SPACES
+    return skill_kind(read_run_config(Path(run_dir), field))
