@@ -9,7 +9,7 @@ training). Reported:
 - the mean displacement of h(s) per action (steps that ended in a reset excluded);
 - random-action physics throughput (environment actions/s and physics steps/s) of the batch;
 - with ``--runs ROBOT=RUN_DIR``, the mean displacement per action of 48 greedy top-level
-  skills of that run's newest checkpoint, from the initial state (``Trainer.skill_paths``);
+  skills of that run's newest checkpoint, from the initial state (``HEAgent.skill_paths``);
 - what the robot can do without learning: the longest net displacement in 20 actions of
   an open-loop gait that repeats two random actions (random search over 300 gaits in
   MuJoCo C; an Ant gait that flips is discarded).

@@ -1,7 +1,7 @@
 """Time to quality on a small machine: env steps and wall-clock minutes until a preset's top
 box first holds a target volume at a target greedy success.
 
-For each (preset, seed), trains in this process epoch by epoch (``Trainer.train_epoch``,
+For each (preset, seed), trains in this process epoch by epoch (``HEAgent.train_epoch``,
 compile included; no checkpoints are written, which `mjx-emp train` would add) and after
 every epoch reads the run's curve as ``experiments/equal_steps.py`` does: the top box's
 volume at that epoch and its greedy success averaged over the last ``--window`` epochs'
@@ -27,7 +27,7 @@ from pathlib import Path
 import jax
 import tyro
 
-from mjx_emp.algos.he.agent import Trainer
+from mjx_emp.algos.he.agent import HEAgent
 from mjx_emp.algos.registry import all_presets
 from mjx_emp.run.evaluate import phase1_figures
 
@@ -68,7 +68,7 @@ def smoothed(curve: list[tuple[float, float]], window: int) -> float:
 def time_to_quality(preset: str, seed: int, args: Args) -> dict:
     """One row: when (env steps, wall seconds) PRESET's seed SEED first met the target, confirmed."""
     cfg = dataclasses.replace(all_presets()[preset][1], seed=seed)
-    trainer = Trainer(cfg)
+    trainer = HEAgent(cfg)
     start = time.perf_counter()
     state = trainer.init()
     curve: list[tuple[float, float]] = []

@@ -34,8 +34,8 @@ import jax
 import jax.numpy as jnp
 import tyro
 
-from mjx_emp.algos.he.agent import MODE_GC, TRAIN_EPOCH_TRACE, Trainer
-from mjx_emp.algos.he.config import TrainConfig
+from mjx_emp.algos.he.agent import MODE_GC, TRAIN_EPOCH_TRACE, HEAgent
+from mjx_emp.algos.he.config import HEConfig
 from mjx_emp.algos.he.presets import PRESETS
 from mjx_emp.rollout.hierarchy import jit_init_rollout, jit_rollout
 from mjx_emp.run.checkpoint import Checkpoints
@@ -78,7 +78,7 @@ def _noisy_buffers(state, key: jax.Array):
     return state.replace(replay=buffers[0], goal_space_replay=buffers[1], starts=buffers[2])
 
 
-def checkpoint_cost(cfg: TrainConfig, state, repeats: int) -> dict:
+def checkpoint_cost(cfg: HEConfig, state, repeats: int) -> dict:
     """Median blocking and commit seconds of a checkpoint save, and its size in MB."""
     with tempfile.TemporaryDirectory() as tmp, Checkpoints(Path(tmp), keep=2) as checkpoints:
         blocking, committed = [], []
@@ -91,9 +91,9 @@ def checkpoint_cost(cfg: TrainConfig, state, repeats: int) -> dict:
     return {"block_s": statistics.median(blocking), "commit_s": statistics.median(committed), "mb": size / 2**20}
 
 
-def measure(name: str, cfg: TrainConfig, repeats: int) -> dict:
+def measure(name: str, cfg: HEConfig, repeats: int) -> dict:
     """Compile time, warm epoch throughput and rollout-only throughput of one config."""
-    trainer = Trainer(cfg)
+    trainer = HEAgent(cfg)
     state = trainer.init()
     cached = traces(TRAIN_EPOCH_TRACE)
     first, (state, stats) = _seconds(lambda: trainer.train_epoch(state))

@@ -23,10 +23,10 @@ import jax
 import numpy as np
 import tyro
 
-from mjx_emp.algos.he.presets import PHASE2_PRESETS, phase2_preset_for
 from mjx_emp.algos.registry import GOAL_SPACES, algorithm_of, all_presets, skill_kind
 from mjx_emp.commands import Phase2Experiment, ResumeExperiment, TrainExperiment
 from mjx_emp.metrics import coverage_cells, mean_and_stderr
+from mjx_emp.phase2.presets import PHASE2_PRESETS, phase2_preset_for
 from mjx_emp.run import jobs, store
 from mjx_emp.run.evaluate import COVERAGE_SKILLS, phase2_figures, skill_figures
 

@@ -15,7 +15,7 @@ from pathlib import Path
 import jax
 import tyro
 
-from mjx_emp.algos.he.agent import Trainer
+from mjx_emp.algos.he.agent import HEAgent
 from mjx_emp.algos.he.presets import POINT_MASS_K1, POINT_MASS_K2
 
 
@@ -31,7 +31,7 @@ class Args:
 
 
 def _train(cfg, stop) -> dict:
-    trainer = Trainer(cfg)
+    trainer = HEAgent(cfg)
     state = trainer.init()
     start = time.perf_counter()
     epochs = 0

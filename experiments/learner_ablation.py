@@ -23,7 +23,7 @@ from baselines import merge_row
 from equal_steps import read_curve_at
 from robots_cpu import evaluate_run
 
-from mjx_emp.algos.he.config import TrainConfig
+from mjx_emp.algos.he.config import HEConfig
 from mjx_emp.algos.he.presets import ANT_FIELD_CPU_K1
 from mjx_emp.commands import ResumeExperiment, TrainExperiment
 from mjx_emp.metrics import mean_and_stderr
@@ -74,7 +74,7 @@ class Args:
     kept), for runs stopped before their budget."""
 
 
-def variant_config(variant: str, setting: str, seed: int, env_steps: float | None) -> TrainConfig:
+def variant_config(variant: str, setting: str, seed: int, env_steps: float | None) -> HEConfig:
     """ant-field-cpu-k1 with VARIANT's learner options, in SETTING, for SEED, sized to ENV_STEPS."""
     if variant not in LEARNER_OPTIONS:
         raise SystemExit(f"variants: {variant!r} is unknown; allowed values: {sorted(LEARNER_OPTIONS)}")

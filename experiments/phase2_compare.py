@@ -28,14 +28,15 @@ from pathlib import Path
 import jax
 import tyro
 
-from mjx_emp.algos.he.config import TrainConfig
-from mjx_emp.algos.he.presets import PHASE2_PRESETS, POINT_MASS_K1, POINT_MASS_K2
+from mjx_emp.algos.he.config import HEConfig
+from mjx_emp.algos.he.presets import POINT_MASS_K1, POINT_MASS_K2
 from mjx_emp.commands import Phase2Experiment, TrainExperiment
 from mjx_emp.metrics import mean_and_stderr
+from mjx_emp.phase2.presets import PHASE2_PRESETS
 from mjx_emp.run import jobs, store
 from mjx_emp.tables import markdown_table, mean_stderr_text
 
-AGENTS: dict[str, TrainConfig] = {
+AGENTS: dict[str, HEConfig] = {
     "k1": POINT_MASS_K1,
     "k2": POINT_MASS_K2,
     "k1-n50": dataclasses.replace(POINT_MASS_K1, n=(50,), max_half_width=(15.0,), gs_iterations=8),

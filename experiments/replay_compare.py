@@ -2,7 +2,7 @@
 
 The paper's Algorithms 2 and 3 start every goal-conditioned and goal-space iteration with
 an empty buffer and learn from that iteration's collection only; the library's default
-keeps ring buffers across iterations (``TrainConfig.fresh_replay``). For each preset and
+keeps ring buffers across iterations (``HEConfig.fresh_replay``). For each preset and
 seed this trains both variants for the same number of epochs and evaluates them the
 same way as `mjx-emp eval` (top box at the initial state, greedy success on goals from
 it, coverage). ``python experiments/replay_compare.py --presets point-mass-k1
@@ -19,7 +19,7 @@ from pathlib import Path
 import jax
 import tyro
 
-from mjx_emp.algos.he.agent import Trainer
+from mjx_emp.algos.he.agent import HEAgent
 from mjx_emp.algos.he.presets import PRESETS
 from mjx_emp.metrics import mean_and_stderr
 from mjx_emp.run.evaluate import phase1_figures
@@ -40,7 +40,7 @@ class Args:
 
 def train_and_evaluate(config, episodes: int) -> dict:
     """Train ``config`` in process and report its top level as `mjx-emp eval` would."""
-    trainer = Trainer(config)
+    trainer = HEAgent(config)
     state = trainer.init()
     start = time.perf_counter()
     for _ in range(config.epochs):

@@ -3,7 +3,7 @@
 For each trained run, evaluates its top-level skills under several physics settings
 (``ITERATIONS:INTEGRATOR``; ``0:model`` is the model file's, the paper's 1 iteration and
 Euler) with the same networks: greedy success and the fraction of skills a flip cut short,
-from the initial state and from chained start states (``Trainer.evaluate``). Each
+from the initial state and from chained start states (``HEAgent.evaluate``). Each
 setting's cost is the warm wall time of one such evaluation (the trained k-level rollout
 over ``--episodes`` skills), timed round-robin with the others so that a shared machine's
 drifts cancel; the ratio to ``0:model`` is the median over rounds.
@@ -22,7 +22,7 @@ from pathlib import Path
 import jax
 import tyro
 
-from mjx_emp.algos.he.agent import Trainer
+from mjx_emp.algos.he.agent import HEAgent
 from mjx_emp.run import jobs
 
 
@@ -40,7 +40,7 @@ class Args:
 
 
 def physics(setting: str) -> dict:
-    """``ITERATIONS:INTEGRATOR`` as TrainConfig fields."""
+    """``ITERATIONS:INTEGRATOR`` as HEConfig fields."""
     iterations, integrator = setting.split(":")
     return {"solver_iterations": int(iterations), "integrator": integrator}
 
@@ -49,7 +49,7 @@ def main(args: Args) -> None:
     rows = []
     for run_dir in args.run_dirs:
         trained, epoch, state = jobs.load_run(Path(run_dir))
-        trainers = {s: Trainer(dataclasses.replace(trained.cfg, **physics(s))) for s in args.settings}
+        trainers = {s: HEAgent(dataclasses.replace(trained.cfg, **physics(s))) for s in args.settings}
         rounds = max(1, math.ceil(args.episodes / trained.cfg.num_envs))
         top = trained.cfg.k - 1
         figures, times = {}, {s: [] for s in args.settings}

@@ -18,6 +18,22 @@ from mjx_emp.errors import ConfigError
 from mjx_emp.run import jobs, store
 
 
+EPOCH_FIELDS = ("epoch", "env_steps", "epoch_env_steps", "seconds", "env_steps_per_s", "flip_resets",
+                "checkpoint_blocked_s")
+"""Fields of an epoch's metrics line that belong to the whole agent, whatever the algorithm."""
+
+
+def one_schema(line: dict, algorithm: str) -> dict:
+    """An epoch's metrics line in the schema every algorithm shares: the epoch fields, the
+    algorithm's name and ``levels``, one dict per level (an algorithm without levels, such as
+    METRA, has one: level 0 with every other field of its line)."""
+    if "levels" in line:
+        return {**line, "algorithm": algorithm}
+    epoch = {name: line[name] for name in EPOCH_FIELDS if name in line}
+    level = {"level": 0, **{name: value for name, value in line.items() if name not in epoch and name != "algorithm"}}
+    return {**epoch, "algorithm": algorithm, "levels": [level]}
+
+
 @dataclasses.dataclass(frozen=True)
 class Run:
     """A run directory's agent (pure functions of the algorithm), its newest state, that state's
@@ -27,6 +43,7 @@ class Run:
     state: Any
     epoch: int
     metrics: list[dict]
+    """One line per epoch, in the schema of :func:`one_schema` (metrics.jsonl holds them as written)."""
     run_dir: Path
 
     @property
@@ -78,7 +95,8 @@ def config(preset: str, **changes: Any) -> Any:
 def train(cfg: Any, run_dir: str | Path = "", *, on_epoch: Callable[[dict], None] | None = None,
           keep_checkpoints: int = 3) -> Run:
     """Train a new run of ``cfg`` (a config, or a preset name) in ``run_dir`` (empty: a fresh
-    runs/... name), handing each epoch's metrics line to ``on_epoch``; returns the finished run.
+    runs/... name), handing each epoch's metrics line (:func:`one_schema`) to ``on_epoch``;
+    returns the finished run.
 
     The run is written and checkpointed as ``mjx-emp train`` writes it; a config error raises
     :class:`~mjx_emp.errors.ConfigError` before anything is written.
@@ -86,7 +104,9 @@ def train(cfg: Any, run_dir: str | Path = "", *, on_epoch: Callable[[dict], None
     if isinstance(cfg, str):
         cfg = config(cfg)
     run_dir = str(run_dir) or store.default_run_dir(cfg)
-    jobs.train(TrainExperiment(config=cfg, run_dir=run_dir, keep_checkpoints=keep_checkpoints), on_epoch=on_epoch)
+    name = algorithm_of(cfg).name
+    report = None if on_epoch is None else (lambda line: on_epoch(one_schema(line, name)))
+    jobs.train(TrainExperiment(config=cfg, run_dir=run_dir, keep_checkpoints=keep_checkpoints), on_epoch=report)
     return load(run_dir)
 
 
@@ -94,4 +114,5 @@ def load(run_dir: str | Path, epoch: int | None = None) -> Run:
     """A run directory's agent and its newest good checkpoint (or ``epoch``'s), with its metrics."""
     run_dir = Path(run_dir)
     agent, restored, state = jobs.load_run(run_dir, epoch=epoch)
-    return Run(agent, state, restored, store.read_metrics(run_dir), run_dir)
+    name = algorithm_of(agent.cfg).name
+    return Run(agent, state, restored, [one_schema(line, name) for line in store.read_metrics(run_dir)], run_dir)

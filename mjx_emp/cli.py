@@ -9,13 +9,12 @@ import json
 import os
 import sys
 import time
-from pathlib import Path
 from collections.abc import Callable
+from pathlib import Path
 from typing import Annotated, Any, Union
 
 import tyro
 
-from mjx_emp.algos.he.presets import PHASE2_PRESETS, phase2_preset_for
 from mjx_emp.algos.registry import LATENT_SKILLS, algorithm_of, all_presets
 from mjx_emp.checks import check_levels
 from mjx_emp.commands import (
@@ -28,7 +27,15 @@ from mjx_emp.commands import (
     RolloutExperiment,
     TrainExperiment,
 )
-from mjx_emp.errors import CheckpointError, CheckpointWriteError, ConfigError, Interrupted, RenderError, TrainingDiverged
+from mjx_emp.errors import (
+    CheckpointError,
+    CheckpointWriteError,
+    ConfigError,
+    Interrupted,
+    RenderError,
+    TrainingDiverged,
+)
+from mjx_emp.phase2.presets import PHASE2_PRESETS, phase2_preset_for
 from mjx_emp.run import jobs, store
 from mjx_emp.run.preflight import explain_out_of_memory
 

@@ -12,8 +12,8 @@ from typing import Annotated, Generic, Literal, TypeVar
 
 import tyro
 
-from mjx_emp.algos.he.config import Phase2Config
 from mjx_emp.envs.registry import DOMAIN_NAMES
+from mjx_emp.phase2.config import Phase2Config
 
 ConfigT = TypeVar("ConfigT")
 

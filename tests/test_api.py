@@ -35,7 +35,7 @@ def test_the_readme_example_trains_reports_each_epoch_and_loads(tmp_path):
 def test_config_names_an_unknown_preset_or_field():
     with pytest.raises(ConfigError, match="preset: 'point-mass' is unknown; allowed values: .*'point-mass-k1'"):
         mjx_emp.config("point-mass")
-    with pytest.raises(ConfigError, match="epoch: not a field of TrainConfig"):
+    with pytest.raises(ConfigError, match="epoch: not a field of HEConfig"):
         mjx_emp.config("point-mass-k1", epoch=3)
     with pytest.raises(ConfigError, match="eps: every entry must be > 0"):
         mjx_emp.config("point-mass-k1", eps=(0.0,))
@@ -48,3 +48,18 @@ def test_the_package_exports_the_api_without_loading_jax():
     assert done.stdout.strip() == "['Run', 'config', 'load', 'presets', 'train']"
     with pytest.raises(AttributeError, match="has no attribute 'nothing'"):
         mjx_emp.nothing  # noqa: B018
+
+
+def test_every_algorithm_reports_in_one_schema():
+    he_line = {"epoch": 2, "env_steps": 10.0, "seconds": 1.0, "flip_resets": 0,
+               "levels": [{"level": 0, "success": 0.5}, {"level": 1, "success": 0.25}]}
+    metra_line = {"epoch": 2, "env_steps": 10.0, "seconds": 1.0, "algorithm": "metra", "critic_loss": 0.1,
+                  "dual_lambda": 3.0, "flip_resets": 1}
+    from mjx_emp.api import one_schema
+
+    he = one_schema(he_line, "he")
+    metra = one_schema(metra_line, "metra")
+    assert he == {**he_line, "algorithm": "he"}
+    assert metra == {"epoch": 2, "env_steps": 10.0, "seconds": 1.0, "flip_resets": 1, "algorithm": "metra",
+                     "levels": [{"level": 0, "critic_loss": 0.1, "dual_lambda": 3.0}]}
+    assert set(he) == set(metra)

@@ -20,10 +20,11 @@ from flax import struct
 from tiny import SMALL, TINY, mjx_emp, run_cli, tiny_after_two_epochs, tiny_trainer
 
 from mjx_emp import cli
-from mjx_emp.algos.he.agent import Trainer
-from mjx_emp.algos.registry import config_from_json
+from mjx_emp.algos.he.agent import HEAgent
+from mjx_emp.algos.registry import config_from_json, config_to_json
 from mjx_emp.errors import CheckpointError, CheckpointWriteError, TrainingDiverged
 from mjx_emp.run.checkpoint import Checkpoints, config_mismatches, layout_mismatch, layout_of, pack, unpack
+from mjx_emp.run.jobs import load_run
 from mjx_emp.run.loop import train_epochs
 from mjx_emp.run.store import keep_metrics_through
 
@@ -206,7 +207,7 @@ def final_state(run_dir: Path, epoch: int):
     cfg = config_from_json(json.loads((run_dir / "config.json").read_text()))
     with Checkpoints(run_dir) as checkpoints:
         assert epoch in checkpoints.epochs()
-        return checkpoints.restore(epoch, jax.eval_shape(Trainer(cfg).init), cfg)
+        return checkpoints.restore(epoch, jax.eval_shape(HEAgent(cfg).init), cfg)
 
 
 @pytest.fixture(scope="module")
@@ -430,6 +431,35 @@ def test_a_planted_half_written_checkpoint_is_ignored_and_cleaned_up(saved_run, 
         assert epoch == 2
         assert_bitwise_equal(restored, states[2])
     assert not partial.exists()
+
+
+def test_a_reader_leaves_a_checkpoint_being_written_alone(saved_run, tmp_path):
+    """eval, plot and phase 2 open a run read-only: a temporary checkpoint folder (what a
+    training process is writing) survives them, and the newest complete epoch is what they load."""
+    run_dir, states = saved_run
+    copy = tmp_path / "run"
+    subprocess.run(["cp", "-r", str(run_dir), str(copy)], check=True)
+    (copy / "config.json").write_text(json.dumps(config_to_json(TINY)))
+    writing = copy / "checkpoints" / "3.orbax-checkpoint-tmp"
+    writing.mkdir()
+    agent, epoch, restored = load_run(copy)
+    assert epoch == 2
+    assert_bitwise_equal(restored, states[2])
+    assert writing.exists()
+    with Checkpoints(copy, read_only=True) as checkpoints:
+        assert checkpoints.epochs() == [1, 2]
+    assert writing.exists()
+
+
+def test_a_renamed_checkpoint_folder_is_refused_naming_both_epochs(saved_run, tmp_path):
+    run_dir, states = saved_run
+    copy = tmp_path / "run"
+    subprocess.run(["cp", "-r", str(run_dir), str(copy)], check=True)
+    (copy / "checkpoints" / "1").rename(copy / "checkpoints" / "10")
+    with Checkpoints(copy, read_only=True) as checkpoints, pytest.raises(CheckpointError) as err:
+        checkpoints.restore_latest(states[2], TINY)
+    assert "holds the state of epoch 1, not 10" in str(err.value) and "renamed" in str(err.value)
+    assert (copy / "checkpoints" / "10").exists() and (copy / "checkpoints" / "2").exists()
 
 
 def test_a_checkpoint_from_before_episode_links_restores_with_unlinked_rows(saved_run, tmp_path):

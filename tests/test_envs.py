@@ -6,7 +6,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from mjx_emp.algos.he.config import TrainConfig, check_train_config
+from mjx_emp.algos.he.config import HEConfig, check_train_config
 from mjx_emp.envs.env import make_env
 from mjx_emp.envs.registry import DOMAINS
 from mjx_emp.errors import ConfigError
@@ -221,4 +221,4 @@ def test_physics_overrides_reach_the_model_and_bad_ones_name_their_field():
     with pytest.raises(ConfigError, match="integrator: 'verlet' is unknown"):
         make_env("point_mass", False, 0, "verlet")
     with pytest.raises(ConfigError, match="solver_iterations: must be >= 0"):
-        check_train_config(TrainConfig(solver_iterations=-1))
+        check_train_config(HEConfig(solver_iterations=-1))

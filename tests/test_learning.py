@@ -5,12 +5,12 @@ import os
 import jax
 import pytest
 
-from mjx_emp.algos.he.agent import Trainer
+from mjx_emp.algos.he.agent import HEAgent
 from mjx_emp.algos.he.presets import POINT_MASS_K1
 
 
 def test_point_mass_default_grows_its_goal_space_and_reaches_it():
-    trainer = Trainer(POINT_MASS_K1)
+    trainer = HEAgent(POINT_MASS_K1)
     state = trainer.init()
     initial = trainer.goal_spaces(state)[0]["volume"]
     for _ in range(POINT_MASS_K1.epochs):

@@ -6,7 +6,7 @@ import json
 import pytest
 from tiny import TINY
 
-from mjx_emp.algos.he.config import TrainConfig
+from mjx_emp.algos.he.config import HEConfig
 from mjx_emp.algos.he.presets import PRESETS
 from mjx_emp.algos.registry import (
     ALGORITHMS,
@@ -59,7 +59,7 @@ def test_make_agent_checks_the_config_before_building():
 def test_table_1_presets_keep_the_papers_learner_and_physics():
     paper = {name: cfg for name, (description, cfg) in PRESETS.items() if description.startswith("Table 1")}
     assert len(paper) == 12
-    default = TrainConfig()
+    default = HEConfig()
     for name, cfg in paper.items():
         for field in ("her", "n_step", "critic_layer_norm", "actor_layer_norm", "relabel", "critics",
                       "solver_iterations", "integrator", "fresh_replay", "heading_frame"):

@@ -10,8 +10,7 @@ import pytest
 from PIL import Image
 from tiny import SMALL, run_cli
 
-from mjx_emp.run import checkpoint
-from mjx_emp.run import jobs
+from mjx_emp.run import checkpoint, jobs
 from mjx_emp.viz.render import Recording, first_skills, marker_position
 
 

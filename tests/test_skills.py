@@ -17,7 +17,7 @@ from PIL import Image
 from test_checkpoint import assert_bitwise_equal, kill_when
 from tiny import TINY, mjx_emp, run_cli
 
-from mjx_emp.algos.he.agent import Trainer
+from mjx_emp.algos.he.agent import HEAgent
 from mjx_emp.algos.he.config import GcrlConfig
 from mjx_emp.algos.skills import objectives as obj
 from mjx_emp.algos.skills.agent import SkillAgent
@@ -182,7 +182,7 @@ def test_eval_reports_coverage_and_posterior_std(tmp_path):
 
 
 def test_gcrl_goal_spaces_stay_the_hand_set_boxes_while_the_policies_learn():
-    trainer = Trainer(tiny("gcrl"))
+    trainer = HEAgent(tiny("gcrl"))
     state = trainer.init()
     actors = jax.tree.leaves(state.policies[0].actor)
     for _ in range(2):
@@ -192,7 +192,7 @@ def test_gcrl_goal_spaces_stay_the_hand_set_boxes_while_the_policies_learn():
         np.testing.assert_allclose(box["shift"], [0.0, 0.0], atol=1e-7)
     assert any(not np.array_equal(a, b) for a, b in zip(actors, jax.tree.leaves(state.policies[0].actor)))
     with pytest.raises(ConfigError, match="gs_iterations: GCRL learns no goal space; must be 0, got 1"):
-        Trainer(dataclasses.replace(tiny("gcrl"), gs_iterations=1))
+        HEAgent(dataclasses.replace(tiny("gcrl"), gs_iterations=1))
 
 
 def test_skill_paths_start_at_the_initial_state_and_move():

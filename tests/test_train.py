@@ -18,11 +18,11 @@ from mjx_emp.algos.he.agent import (
     MODE_GS,
     MODE_STARTS,
     TRAIN_EPOCH_TRACE,
-    Trainer,
+    HEAgent,
     epoch_schedule,
     start_subset,
 )
-from mjx_emp.algos.he.config import TrainConfig
+from mjx_emp.algos.he.config import HEConfig
 from mjx_emp.envs.env import make_env
 from mjx_emp.errors import ConfigError
 from mjx_emp.learners.ddpg import (
@@ -42,7 +42,7 @@ from mjx_emp.tracing import traces
 
 
 def test_schedule_follows_the_appendix_per_level():
-    schedule = epoch_schedule(TrainConfig(n=(20, 10), sigma_gc=(0.4, 0.8), sigma_gs=(1.75, 3.5),
+    schedule = epoch_schedule(HEConfig(n=(20, 10), sigma_gc=(0.4, 0.8), sigma_gs=(1.75, 3.5),
                                           eps=(0.6, 1.2), init_half_width=(0.5, 1.0), max_half_width=(10, 100)))
     assert tuple(schedule[0]) == (2, MODE_STARTS)
     for level in range(2):
@@ -62,7 +62,7 @@ def test_goal_space_actor_starts_at_the_initial_box_and_respects_its_bound():
     for level, box in enumerate(trainer.goal_spaces(state)):
         np.testing.assert_allclose(box["half_width"], TINY.init_half_width[level], rtol=1e-2)
         np.testing.assert_allclose(box["shift"], 0.0, atol=1e-2)
-    net = trainer.gs_actor_net(0)
+    net = trainer.nets.gs_actor_net(0)
     params = jax.tree.map(lambda x: x * 1e4, state.goal_spaces[0].actor)  # an absurd network
     action = net.apply(params, jnp.ones(make_env("point_mass").feature_size) * 50)
     shift, log_half_width = gce.split_goal_space_action(action)
@@ -72,7 +72,7 @@ def test_goal_space_actor_starts_at_the_initial_box_and_respects_its_bound():
 
 def test_gc_update_moves_targets_by_tau_and_only_its_level():
     cfg = TINY
-    trainer_one_step = Trainer(TrainConfig(**{**cfg.__dict__, "gc_grad_steps": 1}))
+    trainer_one_step = HEAgent(HEConfig(**{**cfg.__dict__, "gc_grad_steps": 1}))
     state = trainer_one_step.init()
     state, _ = trainer_one_step.train_epoch(state)  # fills the replay buffers
     before = state.policies
@@ -98,11 +98,11 @@ def test_gc_critic_target_masks_bootstrap_where_reached():
                   reached=jnp.array([True, False]))
     learner = state.policies[0]
     critic_loss, _ = trainer.gc_losses(0, learner, None, batch)
-    q = trainer.q_value(learner.critic, obs, batch.goal, batch.action)
+    q = trainer.nets.q_value(learner.critic, obs, batch.goal, batch.action)
     reward = gce.goal_conditioned_reward(batch.goal, jnp.zeros((2, 2)), TINY.sigma_gc[0])
     next_action = greedy_batch(trainer.hierarchy.policies[0], learner.target_actor, None)(obs, batch.goal)
     cap = reward_cap(2, TINY.sigma_gc[0], TINY.gamma)
-    next_q = jnp.minimum(trainer.q_value(learner.target_critic, obs, batch.goal, next_action), cap)
+    next_q = jnp.minimum(trainer.nets.q_value(learner.target_critic, obs, batch.goal, next_action), cap)
     target = reward + jnp.array([0.0, TINY.gamma]) * next_q
     np.testing.assert_allclose(critic_loss(learner.critic), jnp.mean(jnp.square(q - target)), rtol=1e-5)
 
@@ -126,13 +126,13 @@ def test_twin_critics_bootstrap_from_the_smaller_target_critic():
 
 
 def test_two_critics_are_initialised_apart_and_evaluated_together():
-    trainer = Trainer(dataclasses.replace(TINY, critics=2))
+    trainer = HEAgent(dataclasses.replace(TINY, critics=2))
     state = trainer.init()
     leaves = jax.tree.leaves(state.policies[0].critic)
     assert all(leaf.shape[0] == 2 for leaf in leaves)
     assert any(not np.allclose(leaf[0], leaf[1]) for leaf in leaves)  # two different initialisations
     obs = jnp.zeros((3, trainer.env.obs_size))
-    assert trainer.q_value(state.policies[0].critic, obs, jnp.ones((3, 2)), jnp.zeros((3, 2))).shape == (2, 3)
+    assert trainer.nets.q_value(state.policies[0].critic, obs, jnp.ones((3, 2)), jnp.zeros((3, 2))).shape == (2, 3)
 
 
 def test_relabelled_goals_take_other_rows_offsets_and_recompute_reached():
@@ -176,7 +176,7 @@ def test_two_epochs_fill_buffers_learn_and_do_not_recompile():
 def test_fresh_replay_keeps_only_each_iterations_own_collection():
     # The paper's Algorithm 2 starts every call with an empty D: after an epoch, each
     # level's replay holds exactly the transitions of its last goal-conditioned iteration.
-    trainer = Trainer(dataclasses.replace(TINY, fresh_replay=True))
+    trainer = HEAgent(dataclasses.replace(TINY, fresh_replay=True))
     state, stats = trainer.train_epoch(trainer.init())
     s = jax.tree.map(np.asarray, stats)
     for level in range(TINY.k):
@@ -220,7 +220,7 @@ def test_box_where_used_reads_level_zero_box_at_level_one_states():
     rows = replay.data.replace(obs=jnp.broadcast_to(obs, replay.data.obs.shape))
     filled = replay.replace(data=rows, size=jnp.asarray(7, jnp.int32))
     state = state.replace(replay=(state.replay[0], filled))
-    shift, half_width = trainer.learned_box(0)(state.goal_spaces[0].actor, obs)
+    shift, half_width = trainer.nets.learned_box(0)(state.goal_spaces[0].actor, obs)
     used = trainer.boxes_where_used(state, rows=16)[0]
     assert used["max_abs_shift"] == pytest.approx(float(jnp.abs(shift).max()), rel=1e-5)
     assert used["mean_half_width"] == pytest.approx(float(half_width.mean()), rel=1e-5)
@@ -257,18 +257,18 @@ def test_restore_round_trips_observations():
 )
 def test_bad_train_config_names_the_field(change, field):
     with pytest.raises(ConfigError, match=field):
-        Trainer(TrainConfig(**{**TINY.__dict__, **change}))
+        HEAgent(HEConfig(**{**TINY.__dict__, **change}))
 
 
 def test_trainers_of_equal_configs_share_one_compiled_epoch():
     trainer, _, state, _, _ = tiny_after_two_epochs()
-    twin = Trainer(dataclasses.replace(TINY))
+    twin = HEAgent(dataclasses.replace(TINY))
     assert twin is not trainer and twin == trainer and hash(twin) == hash(trainer)
     trainer.train_epoch(jax.tree.map(jnp.copy, state))  # compiled here, whatever earlier tests left
     before = traces(TRAIN_EPOCH_TRACE)
     twin.train_epoch(jax.tree.map(jnp.copy, state))
     assert traces(TRAIN_EPOCH_TRACE) == before, "an equal config recompiled the epoch"
-    assert Trainer(dataclasses.replace(TINY, seed=TINY.seed + 1)) != trainer
+    assert HEAgent(dataclasses.replace(TINY, seed=TINY.seed + 1)) != trainer
 
 
 def test_seeds_under_one_vmap_train_as_separate_runs_do():
@@ -288,10 +288,10 @@ def box_after_svg(init_hw: float, reached: bool, steps: int = 300) -> tuple[floa
     """Level 0's box half-width before and after one goal-space update of ``steps`` SVG steps
     on 256 samples around its box, whose goals were all reached or all missed (no movement)."""
     cfg = dataclasses.replace(TINY, init_half_width=(init_hw, 0.6), gs_grad_steps=steps, batch_size=64, gs_replay_capacity=256)
-    t = Trainer(cfg); s = t.init()
+    t = HEAgent(cfg); s = t.init()
     obs = jnp.asarray(t.initial_obs); start = t.env.goal_of_obs(obs)
     n = 256; k1, k2 = jax.random.split(jax.random.key(0))
-    mu = t.goal_space_action(0, s.goal_spaces[0].actor, obs)
+    mu = t.nets.goal_space_action(0, s.goal_spaces[0].actor, obs)
     shift, loghw = gce.split_goal_space_action(mu)
     jitter = jax.random.uniform(k1, (n, 2), minval=-0.4, maxval=0.4)
     actions = jnp.concatenate([jnp.broadcast_to(shift, (n, 2)), loghw + jitter], -1)
@@ -300,9 +300,9 @@ def box_after_svg(init_hw: float, reached: bool, steps: int = 300) -> tuple[floa
     reward = jax.vmap(lambda zz, f, a: gce.goal_space_reward(start, zz, f, a, cfg.sigma_gs[0]))(z, final, actions)
     rows = GoalSpaceSample(obs=jnp.broadcast_to(obs, (n, obs.shape[0])), noise=noise, action=actions, reward=reward)
     gsr = (replay_insert(s.goal_space_replay[0], rows, jnp.ones(n, bool)),) + s.goal_space_replay[1:]
-    before = float(t.learned_box(0)(s.goal_spaces[0].actor, obs)[1].mean())
+    before = float(t.nets.learned_box(0)(s.goal_spaces[0].actor, obs)[1].mean())
     (pol, gss), losses = t.gs_update(0)((s.policies, s.goal_spaces), s.replay, gsr, jax.random.key(1))
-    after = float(t.learned_box(0)(gss[0].actor, obs)[1].mean())
+    after = float(t.nets.learned_box(0)(gss[0].actor, obs)[1].mean())
     return before, after
 
 
@@ -354,9 +354,9 @@ def test_gc_critic_target_bootstraps_from_the_target_networks_at_the_next_state(
     def loss_with(actor, critic, at):
         reward = gce.goal_conditioned_reward(batch.goal, trainer.env.goal_of_obs(next_obs), TINY.sigma_gc[0])
         act = greedy_batch(trainer.hierarchy.policies[0], actor, None)(at, batch.goal)
-        bootstrap = jnp.minimum(trainer.q_value(critic, at, batch.goal, act), cap)
+        bootstrap = jnp.minimum(trainer.nets.q_value(critic, at, batch.goal, act), cap)
         target = reward + jnp.where(batch.reached, 0.0, TINY.gamma) * bootstrap
-        return float(jnp.mean(jnp.square(trainer.q_value(learner.critic, obs, batch.goal, batch.action) - target)))
+        return float(jnp.mean(jnp.square(trainer.nets.q_value(learner.critic, obs, batch.goal, batch.action) - target)))
 
     actual = float(critic_loss(learner.critic))
     assert actual == pytest.approx(loss_with(learner.target_actor, learner.target_critic, next_obs), rel=1e-5)
@@ -459,7 +459,7 @@ def test_layer_norm_only_where_configured():
         return sum("LayerNorm" in "/".join(str(k) for k in path) for path, _ in jax.tree_util.tree_leaves_with_path(params))
 
     for critic_ln, actor_ln in ((True, False), (False, True)):
-        state = Trainer(dataclasses.replace(TINY, critic_layer_norm=critic_ln, actor_layer_norm=actor_ln)).init()
+        state = HEAgent(dataclasses.replace(TINY, critic_layer_norm=critic_ln, actor_layer_norm=actor_ln)).init()
         for level in range(TINY.k):
             assert layer_norms(state.policies[level].critic) == (2 * len(TINY.hidden) if critic_ln else 0)
             assert layer_norms(state.policies[level].actor) == (2 * len(TINY.hidden) if actor_ln else 0)

@@ -9,11 +9,12 @@ import sys
 import jax
 import numpy as np
 
-from mjx_emp.algos.he.agent import TRAIN_EPOCH_TRACE, Trainer
-from mjx_emp.algos.he.config import Phase2Config, TrainConfig
+from mjx_emp.algos.he.agent import TRAIN_EPOCH_TRACE, HEAgent
+from mjx_emp.algos.he.config import HEConfig
+from mjx_emp.phase2.config import Phase2Config
 from mjx_emp.tracing import traces
 
-TINY = TrainConfig(
+TINY = HEConfig(
     env="point_mass", n=(3, 2), sigma_gc=(0.4, 0.8), sigma_gs=(0.4, 0.8), eps=(0.3, 0.6),
     init_half_width=(0.3, 0.6), max_half_width=(3.0, 6.0), num_envs=8, chunk_steps=3,
     gc_iterations=2, gc_grad_steps=3, gs_grad_steps=2, batch_size=16, replay_capacity=512,
@@ -27,8 +28,8 @@ TINY_PHASE2 = Phase2Config(
 
 
 @functools.cache
-def tiny_trainer() -> Trainer:
-    return Trainer(TINY)
+def tiny_trainer() -> HEAgent:
+    return HEAgent(TINY)
 
 
 @functools.cache

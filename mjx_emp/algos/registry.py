@@ -13,7 +13,7 @@ from collections.abc import Callable, Mapping
 from typing import Any, Protocol
 
 from mjx_emp.algos.he.config import SHARD_SPLIT as HE_SHARD_SPLIT
-from mjx_emp.algos.he.config import GcrlConfig, TrainConfig, check_gcrl_config, check_train_config
+from mjx_emp.algos.he.config import GcrlConfig, HEConfig, check_gcrl_config, check_train_config
 from mjx_emp.algos.he.presets import GCRL_PRESETS
 from mjx_emp.algos.he.presets import PRESETS as HE_PRESETS
 from mjx_emp.algos.skills.config import SHARD_SPLIT as SKILL_SHARD_SPLIT
@@ -28,7 +28,7 @@ ALGORITHM_KEY = "algorithm"
 GOAL_SPACES = "goal_spaces"
 """Skills of a learnt goal space: per level a box of goals and a goal-conditioned policy. Agents
 of this kind also offer ``goal_spaces``, ``evaluate``, ``skill_chain`` and ``skill_paths`` (see
-:class:`mjx_emp.algos.he.agent.Trainer`); phase 2 commands them with subgoals."""
+:class:`mjx_emp.algos.he.agent.HEAgent`); phase 2 commands them with subgoals."""
 LATENT_SKILLS = "latent"
 """Skills z drawn from a prior, each run for a fixed length. Agents of this kind also offer
 ``skill_paths``, ``record_skills`` and ``posterior_std`` (see
@@ -82,10 +82,10 @@ class Algorithm:
             raise ValueError(f"skills: {self.skills!r} is unknown; allowed values: {list(SKILL_KINDS)}")
 
 
-def _he_agent(cfg: TrainConfig, shard_axes: tuple[str, ...]) -> Agent:
-    from mjx_emp.algos.he.agent import Trainer  # deferred: JAX loads only when an agent is built
+def _he_agent(cfg: HEConfig, shard_axes: tuple[str, ...]) -> Agent:
+    from mjx_emp.algos.he.agent import HEAgent  # deferred: JAX loads only when an agent is built
 
-    return Trainer(cfg, shard_axes)
+    return HEAgent(cfg, shard_axes)
 
 
 def _skill_agent(cfg: Any, shard_axes: tuple[str, ...]) -> Agent:
@@ -100,7 +100,7 @@ def _skill_algorithm(name: str, config_type: type) -> Algorithm:
 
 
 ALGORITHMS: dict[str, Algorithm] = {
-    "he": Algorithm("he", TrainConfig, check_train_config, HE_PRESETS, _he_agent, HE_SHARD_SPLIT, GOAL_SPACES),
+    "he": Algorithm("he", HEConfig, check_train_config, HE_PRESETS, _he_agent, HE_SHARD_SPLIT, GOAL_SPACES),
     "gcrl": Algorithm("gcrl", GcrlConfig, check_gcrl_config, GCRL_PRESETS, _he_agent, HE_SHARD_SPLIT, GOAL_SPACES),
     "diayn": _skill_algorithm("diayn", DiaynConfig),
     "hidio": _skill_algorithm("hidio", HidioConfig),

@@ -1,11 +1,11 @@
 """Orbax checkpoints of a whole train state (phase 1 or phase 2), one per epoch.
 
-A checkpoint holds every array of the state (for phase 1's ``TrainState``: parameters,
+A checkpoint holds every array of the state (for phase 1's ``HEState``: parameters,
 target parameters, optimizer states, replay, goal-space and start-state buffers, the start
 chain's simulator state, RNG keys as ``jax.random.key_data``, epoch and step counters),
 packed into one flat array per dtype (item ``state``), the path, shape and dtype of each
 array (item ``layout``, JSON) and the run's config (item ``config``, JSON: a
-``TrainConfig``, or a ``Phase2Config`` for phase 2). ``Checkpoints.restore`` gives the
+``HEConfig``, or a ``Phase2Config`` for phase 2). ``Checkpoints.restore`` gives the
 pytree back. Orbax writes each step into a temporary directory and renames it when
 complete, so a process killed mid-write leaves the previous checkpoint as the latest one;
 the half-written directory is ignored and cleaned up when the run directory is next opened.
@@ -28,7 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 import orbax.checkpoint as ocp
 
-from mjx_emp.algos.he.config import TrainConfig
+from mjx_emp.algos.he.config import HEConfig
 from mjx_emp.checks import config_from_dict
 from mjx_emp.counters import digits
 from mjx_emp.errors import CheckpointError, CheckpointWriteError
@@ -221,14 +221,24 @@ def config_mismatches(saved: dict, expected: Any) -> list[str]:
     ]
 
 
+def stored_epoch(state: Any) -> int | None:
+    """The epoch counter a restored state carries (one per seed or shard, all equal), if it has one."""
+    epoch = getattr(state, "epoch", None)
+    return None if epoch is None else int(np.asarray(epoch).reshape(-1)[0])
+
+
 @dataclasses.dataclass
 class Checkpoints:
     """The checkpoints of one run directory: save every epoch, restore the latest good one."""
 
     run_dir: Path
     keep: int = 3
-    config_type: type = TrainConfig
+    config_type: type = HEConfig
     """The config dataclass stored with each checkpoint."""
+    read_only: bool = False
+    """A reader (eval, plot, render, phase 2 loading its skills): it saves, prunes and cleans up
+    nothing, so a run that another process is writing is left as it is. Only the run's writer
+    (train or resume, holding the run's lock) removes a half-written checkpoint."""
     manager: ocp.CheckpointManager | None = dataclasses.field(init=False, repr=False)
     """None on a process other than the lead of a several-host run: only the lead writes."""
 
@@ -240,8 +250,11 @@ class Checkpoints:
             self.directory.mkdir(parents=True, exist_ok=True)
             several_hosts = dict(create=False, multiprocessing_options=ocp.options.MultiprocessingOptions(
                 primary_host=0, active_processes={0}))
+        if self.read_only:
+            several_hosts = {**several_hosts, "create": False}
         options = ocp.CheckpointManagerOptions(
-            max_to_keep=self.keep, cleanup_tmp_directories=True, enable_async_checkpointing=True, **several_hosts,
+            max_to_keep=None if self.read_only else self.keep, cleanup_tmp_directories=not self.read_only,
+            read_only=self.read_only, enable_async_checkpointing=True, **several_hosts,
         )
         self.manager = None if jax.process_index() != 0 else ocp.CheckpointManager(
             self.directory.absolute(), options=options, item_names=("state", "layout", "config", "digests"),
@@ -356,7 +369,12 @@ class Checkpoints:
             mismatch = layout_mismatch(layout_in_order(arrays, layout), layout)
             if mismatch:
                 raise CheckpointError(f"{step_dir / 'layout'} does not fit this version's train state: {mismatch}")
-        return tree_from_arrays(arrays, template, layout)
+        state = tree_from_arrays(arrays, template, layout)
+        stored = stored_epoch(state)
+        if stored is not None and stored != epoch:
+            raise CheckpointError(f"{step_dir} holds the state of epoch {stored}, not {epoch}: a checkpoint folder "
+                                  "must keep the number it was written under (was it renamed?)")
+        return state
 
     def _verify(self, epoch: int, arrays: dict[str, np.ndarray]) -> None:
         """Check every restored array against the digests written with it (checkpoints written
@@ -390,7 +408,8 @@ class Checkpoints:
         for epoch in reversed(epochs):
             try:
                 state = self.restore(epoch, template, expected)
-                self._set_aside_newer_than(epoch)
+                if not self.read_only:
+                    self._set_aside_newer_than(epoch)
                 return epoch, state
             except CheckpointError as err:
                 if not fallback:

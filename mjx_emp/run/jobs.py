@@ -11,13 +11,13 @@ import json
 from collections.abc import Callable
 from pathlib import Path
 
-from mjx_emp.algos.he.config import Phase2Config, check_phase2_config
 from mjx_emp.algos.registry import (
     algorithm_of,
     make_agent,
 )
 from mjx_emp.commands import Phase2Experiment, ResumeExperiment, TrainExperiment
 from mjx_emp.errors import ConfigError
+from mjx_emp.phase2.config import Phase2Config, check_phase2_config
 from mjx_emp.run.loop import train_to_the_end
 from mjx_emp.run.store import (
     CONFIG_FILE,
@@ -123,7 +123,7 @@ def _restore(run_dir: Path, trainer, template, fallback: bool = False, epoch: in
     """``(epoch, state)`` of ``run_dir``'s newest good checkpoint, or of ``epoch``'s, for ``trainer``."""
     from mjx_emp.run.checkpoint import Checkpoints
 
-    with Checkpoints(run_dir, config_type=type(trainer.cfg)) as checkpoints:
+    with Checkpoints(run_dir, config_type=type(trainer.cfg), read_only=True) as checkpoints:
         if epoch is None:
             return checkpoints.restore_latest(template, trainer.cfg, fallback)
         if epoch not in checkpoints.epochs():
@@ -200,7 +200,7 @@ def train_phase2(exp: Phase2Experiment):
     _check_keep(exp.keep_checkpoints)
     if not exp.run_dir:
         raise ConfigError("run_dir: give the phase-1 run directory, e.g. `mjx-emp phase2 runs/pm1`")
-    from mjx_emp.downstream_flat import make_phase2_trainer
+    from mjx_emp.phase2.build import make_phase2_trainer
 
     requested = None if exp.config.phase1_epoch < 0 else exp.config.phase1_epoch
     skills, epoch, skills_state = load_run(Path(exp.run_dir), field="run_dir", epoch=requested)
@@ -220,7 +220,7 @@ def load_phase2(phase2_dir: Path, fallback: bool = False, epochs: int | None = N
     """
     import jax
 
-    from mjx_emp.downstream_flat import make_phase2_trainer
+    from mjx_emp.phase2.build import make_phase2_trainer
 
     phase2_dir = Path(phase2_dir)
     cfg = _with_epochs(read_run_config(phase2_dir, field, Phase2Config), epochs)

@@ -16,7 +16,6 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
-from mjx_emp.algos.he.config import Phase2Config
 from mjx_emp.algos.registry import (
     GOAL_SPACES,
     algorithm_of,
@@ -26,6 +25,7 @@ from mjx_emp.algos.registry import (
 )
 from mjx_emp.checks import config_from_dict
 from mjx_emp.errors import ConfigError
+from mjx_emp.phase2.config import Phase2Config
 
 CONFIG_FILE = "config.json"
 

@@ -103,7 +103,7 @@ def plot_goal_space_boxes(start: list[float], boxes: list[dict], trajectories: l
                           title: str = "") -> Path:
     """Each level's goal-space box around h(s0) over the arena, with trajectories of h(s).
 
-    ``boxes`` are ``Trainer.goal_spaces`` entries (shift and half_width relative to
+    ``boxes`` are ``HEAgent.goal_spaces`` entries (shift and half_width relative to
     h(s0)), none for a flat skill learner; ``trajectories`` are [T, d] arrays of h(s). 1-D goal spaces are drawn as
     intervals on the x axis, with time running upward for the trajectories.
     """
@@ -174,7 +174,7 @@ def plot_run(run_dir: Path, chains: int = 8, skills_per_chain: int = 1) -> list[
 
 def _phase2_plot(run_dir: Path) -> list[Path]:
     """RUN_DIR/phase2's learning curves as RUN_DIR/plots/phase2_curves.png, if it has any."""
-    from mjx_emp.algos.he.config import Phase2Config
+    from mjx_emp.phase2.config import Phase2Config
     from mjx_emp.run.store import PHASE2_SUBDIR, read_run_config
 
     phase2_dir = run_dir / PHASE2_SUBDIR

@@ -28,7 +28,8 @@ import optax
 from flax import struct
 
 from mjx_emp import gce
-from mjx_emp.algos.he.config import GcrlConfig, TrainConfig, check_gcrl_config, check_train_config
+from mjx_emp.algos.he.config import GcrlConfig, HEConfig, check_gcrl_config, check_train_config
+from mjx_emp.algos.he.networks import HENetworks
 from mjx_emp.counters import StepCounter
 from mjx_emp.envs.env import Env, make_env
 from mjx_emp.errors import ConfigError
@@ -47,10 +48,7 @@ from mjx_emp.learners.ddpg import (
 from mjx_emp.learners.goal_space import GoalSpaceLearner, GoalSpaceSample, svg_losses
 from mjx_emp.metrics import epoch_header
 from mjx_emp.nets import (
-    MLP,
-    GoalSpaceActor,
     LevelParams,
-    goal_conditioned_q,
     goal_features,
     greedy_batch,
     level_policy,
@@ -84,7 +82,7 @@ from mjx_emp.shards import ShardAxes, mean_gradients, shard_mean, shard_sum
 from mjx_emp.tracing import count_trace
 
 EVAL_STARTS = ("buffer", "initial", "chained")
-"""Where :meth:`Trainer.evaluate` starts its episodes: the level's start-state buffer (states
+"""Where :meth:`HEAgent.evaluate` starts its episodes: the level's start-state buffer (states
 the greedy skill chain began a skill in, the initial state among them), only the initial
 state, or only the buffer's other states (those chaining reached)."""
 TRAIN_EPOCH_TRACE = "he.train_epoch"
@@ -114,7 +112,7 @@ class StartParams:
 
 
 @struct.dataclass
-class TrainState:
+class HEState:
     """Everything phase 1 learns or remembers; a pytree of arrays, so it checkpoints whole."""
 
     policies: tuple[DDPGLearner, ...]
@@ -144,7 +142,7 @@ class ItemStats:
     flip_resets: jax.Array
 
 
-def epoch_schedule(cfg: TrainConfig) -> np.ndarray:
+def epoch_schedule(cfg: HEConfig) -> np.ndarray:
     """[(level, mode)] of one epoch: start-state refresh, then per level GC, GS and eval items."""
     items = [(cfg.k, MODE_STARTS)]
     for level in range(cfg.k):
@@ -172,26 +170,28 @@ def start_subset(buffer: ReplayBuffer, initial: jax.Array, starts: jax.Array | i
 
 
 @dataclasses.dataclass(frozen=True)
-class Trainer:
+class HEAgent:
     """Static side of phase 1 for one config: env, networks, optimisers, the rollout agent.
 
     It is a static jit argument that hashes and compares by its config, so trainers of
     equal configs share compiled programs. Drive it with :meth:`init` and :meth:`train_epoch`.
     """
 
-    cfg: TrainConfig
+    cfg: HEConfig
     shard_axes: ShardAxes = ()
     """The mapped axes this agent's shards run along when a split run trains (see
     :mod:`mjx_emp.shards`); empty for an agent on its own."""
     env: Env = dataclasses.field(init=False, compare=False, repr=False)
+    nets: HENetworks = dataclasses.field(init=False, compare=False, repr=False)
     hierarchy: Hierarchy = dataclasses.field(init=False, compare=False, repr=False)
 
     def __post_init__(self):
         (check_gcrl_config if isinstance(self.cfg, GcrlConfig) else check_train_config)(self.cfg)
         env = make_env(self.cfg.env, self.cfg.heading_frame, self.cfg.solver_iterations, self.cfg.integrator)
         object.__setattr__(self, "env", env)
+        object.__setattr__(self, "nets", HENetworks(self.cfg, env))
         policies = tuple(
-            level_policy(env, self.actor_net(level), primitive_box if level == 0 else self.learned_box(level - 1))
+            level_policy(env, self.nets.actor_net(level), primitive_box if level == 0 else self.nets.learned_box(level - 1))
             for level in range(self.cfg.k)
         )
         hierarchy = Hierarchy(
@@ -200,62 +200,11 @@ class Trainer:
         )
         object.__setattr__(self, "hierarchy", hierarchy)
 
-    # ---- networks -------------------------------------------------------------------
-    def action_size(self, level: int) -> int:
-        """Primitive action size at level 0, goal-space size above."""
-        return self.env.action_size if level == 0 else self.env.goal_size
-
-    def actor_net(self, level: int) -> MLP:
-        return MLP(tuple(self.cfg.hidden), self.action_size(level), layer_norm=self.cfg.actor_layer_norm)
-
-    @functools.cached_property
-    def critic_net(self) -> MLP:
-        """The goal-space critics' network."""
-        return MLP(tuple(self.cfg.hidden), 1)
-
-    @functools.cached_property
-    def gc_critic_net(self) -> MLP:
-        """The goal-conditioned critics' network."""
-        return MLP(tuple(self.cfg.hidden), 1, layer_norm=self.cfg.critic_layer_norm)
-
-    def gs_actor_net(self, level: int) -> GoalSpaceActor:
-        c = self.cfg
-        return GoalSpaceActor(tuple(c.hidden), self.env.goal_size, c.init_half_width[level], c.max_half_width[level])
-
-    def goal_space_action(self, level: int, params: Params, obs: jax.Array) -> jax.Array:
-        """mu_level(s0): the (shift, log half-width) of the level's goal space at ``obs``
-        (for GCRL the fixed box, whatever the params)."""
-        if isinstance(self.cfg, GcrlConfig):
-            d = self.env.goal_size
-            fixed = jnp.concatenate([jnp.zeros(d), jnp.full(d, math.log(self.cfg.goal_half_width[level]))])
-            return jnp.broadcast_to(fixed, obs.shape[:-1] + (2 * d,))
-        return self.gs_actor_net(level).apply(params, self.env.features(obs))
-
-    def learned_box(self, level: int):
-        """The (params, obs) -> (shift, half_width) box of ``level``'s goal space, absolute widths."""
-
-        def box(params: Params, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
-            shift, log_half_width = gce.split_goal_space_action(self.goal_space_action(level, params, obs))
-            return shift, jnp.exp(log_half_width)
-
-        return box
-
     def _chooser(self, params: Params, obs: jax.Array, goal: jax.Array, key: jax.Array) -> jax.Array:
         """The start-state chain's driver: a skill drawn uniformly from the top goal space."""
         del goal
-        action = self.goal_space_action(self.cfg.k - 1, params, obs)
+        action = self.nets.goal_space_action(self.cfg.k - 1, params, obs)
         return gce.sample_goal(gce.goal_noise(key, (self.env.goal_size,)), action)
-
-    def q_value(self, params: Params, obs: jax.Array, goal: jax.Array, action: jax.Array) -> jax.Array:
-        """Q(s, z, a) of a level's goal-conditioned critic; [critics, ...] with several critics."""
-        if self.cfg.critics == 1:
-            return goal_conditioned_q(self.gc_critic_net, self.env, params, obs, goal, action)
-        return jax.vmap(lambda p: goal_conditioned_q(self.gc_critic_net, self.env, p, obs, goal, action))(params)
-
-    def gs_value(self, params: Params, obs: jax.Array, noise: jax.Array, action: jax.Array) -> jax.Array:
-        """R(s0, noise, a) of a goal-space critic."""
-        x = jnp.concatenate([self.env.features(obs), noise, action], axis=-1)
-        return self.critic_net.apply(params, x)[..., 0]
 
     @functools.cached_property
     def optimizers(self) -> dict[str, optax.GradientTransformation]:
@@ -270,28 +219,28 @@ class Trainer:
         with jax.ensure_compile_time_eval():
             return np.asarray(self.env.observe(self.env.reset(jax.random.key(0))))
 
-    def init(self, key: jax.Array | None = None) -> TrainState:
+    def init(self, key: jax.Array | None = None) -> HEState:
         """Fresh networks, empty replay buffers, start buffers holding the initial state."""
         return _jit_init(self, jax.random.key(self.cfg.seed) if key is None else key)
 
-    def _init(self, key: jax.Array) -> TrainState:
+    def _init(self, key: jax.Array) -> HEState:
         env, cfg, opt = self.env, self.cfg, self.optimizers
         obs, goal = jnp.asarray(self.initial_obs), jnp.zeros(env.goal_size)
         policies, goal_spaces, replay, goal_space_replay, starts = [], [], [], [], []
         for level in range(cfg.k):
             keys = jax.random.split(jax.random.fold_in(key, level), 4)
-            action = jnp.zeros(self.action_size(level))
-            actor = self.actor_net(level).init(keys[0], goal_features(env, obs, goal))
+            action = jnp.zeros(self.nets.action_size(level))
+            actor = self.nets.actor_net(level).init(keys[0], goal_features(env, obs, goal))
             critic_input = jnp.concatenate([goal_features(env, obs, goal), action])
             if cfg.critics == 1:
-                critic = self.gc_critic_net.init(keys[1], critic_input)
+                critic = self.nets.gc_critic_net.init(keys[1], critic_input)
             else:
                 critic_keys = jax.random.split(keys[1], cfg.critics)
-                critic = jax.vmap(lambda k: self.gc_critic_net.init(k, critic_input))(critic_keys)
+                critic = jax.vmap(lambda k: self.nets.gc_critic_net.init(k, critic_input))(critic_keys)
             policies.append(DDPGLearner(actor, critic, actor, critic, opt["actor"].init(actor), opt["critic"].init(critic)))
             gs_action = jnp.zeros(2 * env.goal_size)
-            gs_actor = self.gs_actor_net(level).init(keys[2], env.features(obs))
-            gs_critic = self.critic_net.init(keys[3], jnp.concatenate([env.features(obs), goal, gs_action]))
+            gs_actor = self.nets.gs_actor_net(level).init(keys[2], env.features(obs))
+            gs_critic = self.nets.critic_net.init(keys[3], jnp.concatenate([env.features(obs), goal, gs_action]))
             goal_spaces.append(GoalSpaceLearner(gs_actor, gs_critic, opt["gs_actor"].init(gs_actor), opt["gs_critic"].init(gs_critic)))
             row = GoalTransition(obs, goal, action, obs, jnp.zeros((), bool), successor=jnp.zeros((), jnp.int32))
             replay.append(replay_init(row, cfg.replay_capacity))
@@ -299,7 +248,7 @@ class Trainer:
             start_buffer = replay_init(obs, cfg.start_capacity)
             starts.append(replay_insert(start_buffer, obs[None], jnp.ones(1, bool)))
         key, chain_key = jax.random.split(jax.random.fold_in(key, cfg.k))
-        state = TrainState(
+        state = HEState(
             policies=tuple(policies), goal_spaces=tuple(goal_spaces), replay=tuple(replay), goal_space_replay=tuple(goal_space_replay),
             starts=tuple(starts), chain=None, key=key,
             epoch=jnp.zeros((), jnp.int32), env_steps=StepCounter.zero(),
@@ -309,7 +258,7 @@ class Trainer:
         return state.replace(chain=chain)
 
     # ---- data collection ------------------------------------------------------------
-    def rollout_inputs(self, state: TrainState, root: jax.Array, mode: jax.Array):
+    def rollout_inputs(self, state: HEState, root: jax.Array, mode: jax.Array):
         """Per-level policy params (noise only on the trained level) and start params."""
         cfg = self.cfg
         params = tuple(
@@ -327,7 +276,7 @@ class Trainer:
         )
         return params, start_params
 
-    def skill_chain(self, state: TrainState) -> RolloutPlan:
+    def skill_chain(self, state: HEState) -> RolloutPlan:
         """The greedy chain of top-level skills from the initial state, as the start-state
         refresh runs it (each skill's goal drawn from the top goal space), showing the
         goals of levels 0..k-1."""
@@ -335,7 +284,7 @@ class Trainer:
         params, start_params = self.rollout_inputs(state, jnp.int32(k), jnp.int32(MODE_STARTS))
         return RolloutPlan(self.hierarchy, params, self.start, start_params, root=k)
 
-    def greedy_policy(self, state: TrainState, level: int = 0) -> Callable[[jax.Array, jax.Array], jax.Array]:
+    def greedy_policy(self, state: HEState, level: int = 0) -> Callable[[jax.Array, jax.Array], jax.Array]:
         """``level``'s greedy goal-conditioned policy, (obs [B, obs], goal [B, goal]) -> action: a
         primitive action at level 0, a subgoal offset from h(obs) above (goals are absolute)."""
         if not 0 <= level < self.cfg.k:
@@ -354,7 +303,7 @@ class Trainer:
         candidates = [replay_sample(buf, pick_key, 1)[0] for buf in start_params.starts]
         s0 = jnp.stack(candidates + [jnp.asarray(self.initial_obs)])[start_params.root]
         state = env.restore(env_key, s0)
-        actions = [self.goal_space_action(level, p, s0) for level, p in enumerate(start_params.gs_actors)]
+        actions = [self.nets.goal_space_action(level, p, s0) for level, p in enumerate(start_params.gs_actors)]
         action = jnp.stack(actions + [jnp.zeros(2 * d)])[start_params.root]
         shift, log_half_width = gce.split_goal_space_action(action)
         jitter = start_params.goal_noise * jax.random.normal(box_key, (2 * d,))
@@ -369,7 +318,7 @@ class Trainer:
         longest = np.cumprod(cfg.n)
         return jnp.asarray([math.ceil(t / cfg.chunk_steps) + 1 for t in longest] + [cfg.start_chunks])
 
-    def _collect(self, state: TrainState, root: jax.Array, mode: jax.Array, key: jax.Array):
+    def _collect(self, state: HEState, root: jax.Array, mode: jax.Array, key: jax.Array):
         """Run the agent rooted at ``root`` and file what it saw into the right buffers.
 
         GC: every valid root transition goes to the level's replay. GS: every finished root
@@ -466,7 +415,7 @@ class Trainer:
         policy = self.hierarchy.policies[level]
         return ddpg_losses(
             lambda actor, obs, goal: greedy_batch(policy, actor, box)(obs, goal),
-            self.q_value, learner, batch, self.env, cfg.sigma_gc[level], cfg.gamma, backup,
+            self.nets.q_value, learner, batch, self.env, cfg.sigma_gc[level], cfg.gamma, backup,
         )
 
     def gc_update(self, level: int):
@@ -504,7 +453,7 @@ class Trainer:
 
     def gs_losses(self, level: int, batch: GoalSpaceSample, noise: jax.Array):
         """(critic loss, actor loss) functions of one goal-space minibatch at ``level`` (SVG)."""
-        return svg_losses(self.gs_value, functools.partial(self.goal_space_action, level), batch, noise)
+        return svg_losses(self.nets.gs_value, functools.partial(self.nets.goal_space_action, level), batch, noise)
 
     def gs_update(self, level: int):
         cfg, opt = self.cfg, self.optimizers
@@ -535,14 +484,14 @@ class Trainer:
         return learners, jnp.full(2, jnp.nan)
 
     # ---- the epoch ------------------------------------------------------------------
-    def _train_epoch(self, state: TrainState) -> tuple[TrainState, ItemStats]:
+    def _train_epoch(self, state: HEState) -> tuple[HEState, ItemStats]:
         count_trace(TRAIN_EPOCH_TRACE)
         cfg = self.cfg
         branches = [self._no_update]
         for level in range(cfg.k):
             branches += [self.gc_update(level), self.gs_update(level)]
 
-        def item(state: TrainState, schedule_item):
+        def item(state: HEState, schedule_item):
             root, mode = schedule_item[0], schedule_item[1]
             key, collect_key, update_key = jax.random.split(state.key, 3)
             state, totals = self._collect(state.replace(key=key), root, mode, collect_key)
@@ -561,11 +510,11 @@ class Trainer:
         state, stats = jax.lax.scan(item, state, jnp.asarray(epoch_schedule(cfg)))
         return state.replace(epoch=state.epoch + 1), stats
 
-    def train_epoch(self, state: TrainState) -> tuple[TrainState, ItemStats]:
+    def train_epoch(self, state: HEState) -> tuple[HEState, ItemStats]:
         """One curriculum epoch as one jitted call; returns per-schedule-item stats."""
         return _jit_train_epoch(self, state)
 
-    def evaluate(self, state: TrainState, level: int, key: jax.Array, rounds: int = 4,
+    def evaluate(self, state: HEState, level: int, key: jax.Array, rounds: int = 4,
                  starts: str = "buffer") -> dict[str, float]:
         """Greedy skills at ``level`` on goals drawn from its own (noise-free) goal space at their start.
 
@@ -581,7 +530,7 @@ class Trainer:
         reached, distance, cut = _jit_evaluate(self, state, jnp.int32(level), key, rounds, which)
         return {"success": float(reached), "final_distance": float(distance), "cut_short": float(cut)}
 
-    def _evaluate(self, state: TrainState, level: jax.Array, key: jax.Array, rounds: int, starts: jax.Array):
+    def _evaluate(self, state: HEState, level: jax.Array, key: jax.Array, rounds: int, starts: jax.Array):
         initial = jnp.asarray(self.initial_obs)
         state = state.replace(starts=tuple(start_subset(buffer, initial, starts) for buffer in state.starts))
 
@@ -592,7 +541,7 @@ class Trainer:
         _, (reached, distance, cut) = jax.lax.scan(one, None, jax.random.split(key, rounds))
         return reached.mean(), distance.mean(), cut.mean()
 
-    def skill_paths(self, state: TrainState, key: jax.Array, skills: int = 48) -> tuple[np.ndarray, np.ndarray]:
+    def skill_paths(self, state: HEState, key: jax.Array, skills: int = 48) -> tuple[np.ndarray, np.ndarray]:
         """h(s) along ``skills`` greedy top-level skills from the initial state.
 
         Each skill's goal is drawn from the top goal space at the initial state (no noise)
@@ -605,7 +554,7 @@ class Trainer:
         positions, mask = _jit_skill_paths(self, state, key, skills)
         return np.asarray(positions), np.asarray(mask)
 
-    def _skill_paths(self, state: TrainState, key: jax.Array, skills: int):
+    def _skill_paths(self, state: HEState, key: jax.Array, skills: int):
         top = self.cfg.k - 1
         initial = jnp.asarray(self.initial_obs)
         only_initial = replay_insert(replay_init(initial, 1), initial[None], jnp.ones(1, bool))
@@ -624,12 +573,12 @@ class Trainer:
         ])
         return positions, jnp.concatenate([jnp.ones((1, skills), bool), steps_mask])
 
-    def goal_spaces(self, state: TrainState, obs: jax.Array | None = None) -> list[dict[str, list[float]]]:
+    def goal_spaces(self, state: HEState, obs: jax.Array | None = None) -> list[dict[str, list[float]]]:
         """Each level's goal-space box at ``obs`` (default: the initial state), as plain floats."""
         obs = jnp.asarray(self.initial_obs) if obs is None else obs
         boxes = []
         for level in range(self.cfg.k):
-            action = self.goal_space_action(level, state.goal_spaces[level].actor, obs)
+            action = self.nets.goal_space_action(level, state.goal_spaces[level].actor, obs)
             shift, log_half_width = gce.split_goal_space_action(action)
             boxes.append({
                 "shift": np.asarray(shift).tolist(),
@@ -638,7 +587,7 @@ class Trainer:
             })
         return boxes
 
-    def boxes_where_used(self, state: TrainState, rows: int = 1024) -> list[dict[str, float] | None]:
+    def boxes_where_used(self, state: HEState, rows: int = 1024) -> list[dict[str, float] | None]:
         """Each level's goal-space box at the states the level above chose subgoals in.
 
         Level i's box is level i+1's action space at whatever state level i+1 acts from.
@@ -654,13 +603,13 @@ class Trainer:
                 found.append(None)
                 continue
             obs = replay_sample(above, jax.random.fold_in(jax.random.key(0), state.epoch), rows).obs
-            shift, half_width = self.learned_box(level)(state.goal_spaces[level].actor, obs)
+            shift, half_width = self.nets.learned_box(level)(state.goal_spaces[level].actor, obs)
             found.append({"max_abs_shift": float(jnp.abs(shift).max()),
                           "mean_half_width": float(half_width.mean()),
                           "max_half_width": float(half_width.max())})
         return found + [None]
 
-    def metrics(self, state: TrainState, stats: ItemStats, seconds: float) -> dict[str, Any]:
+    def metrics(self, state: HEState, stats: ItemStats, seconds: float) -> dict[str, Any]:
         """One JSON-ready line of per-epoch metrics: goal spaces, success, losses, throughput."""
         s = jax.tree.map(np.asarray, stats)
         levels = []
@@ -686,7 +635,7 @@ class Trainer:
         header = epoch_header(state, float(s.env_steps.sum()), seconds)
         return {**header, "flip_resets": int(s.flip_resets.sum()), "levels": levels}
 
-    def divergence(self, state: TrainState, stats: ItemStats) -> str | None:
+    def divergence(self, state: HEState, stats: ItemStats) -> str | None:
         """Why this epoch's result must not be kept (a non-finite loss or parameter), or None.
 
         Start-refresh and evaluation items carry NaN losses by design and are not checked.
@@ -712,9 +661,9 @@ class Trainer:
         return f"{metrics['env_steps']:.3g} env steps  {metrics['env_steps_per_s']:.3g} steps/s  {levels}"
 
 
-_jit_init = jax.jit(Trainer._init, static_argnums=0)
-_jit_train_epoch = jax.jit(Trainer._train_epoch, static_argnums=0, donate_argnums=1)
-_jit_evaluate = jax.jit(Trainer._evaluate, static_argnums=(0, 4))
-_jit_skill_paths = jax.jit(Trainer._skill_paths, static_argnums=(0, 3))
+_jit_init = jax.jit(HEAgent._init, static_argnums=0)
+_jit_train_epoch = jax.jit(HEAgent._train_epoch, static_argnums=0, donate_argnums=1)
+_jit_evaluate = jax.jit(HEAgent._evaluate, static_argnums=(0, 4))
+_jit_skill_paths = jax.jit(HEAgent._skill_paths, static_argnums=(0, 3))
 
 

@@ -1,4 +1,4 @@
-"""Hierarchical Empowerment's configs: phase 1 (TrainConfig) and phase 2 (Phase2Config).
+"""Hierarchical Empowerment's phase-1 configs: HEConfig, and GcrlConfig (its fixed-box baseline).
 
 Plain Python (no JAX import), so the CLI can reject bad input before compiling anything.
 """
@@ -13,7 +13,7 @@ from mjx_emp.errors import ConfigError
 
 
 @dataclasses.dataclass(frozen=True)
-class TrainConfig:
+class HEConfig:
     """Phase-1 Hierarchical Empowerment training of a k-level agent.
 
     Per-level tuples (n, sigma_gc, sigma_gs, eps, init_half_width, max_half_width) are
@@ -142,10 +142,10 @@ _POSITIVE = ("epochs", "num_envs", "chunk_steps", "gc_iterations", "gc_grad_step
 
 
 SHARD_SPLIT = ("num_envs", "batch_size", "replay_capacity", "gs_replay_capacity", "start_capacity")
-"""The fields a shard of a split run takes its part of (see ``TrainConfig.shards``)."""
+"""The fields a shard of a split run takes its part of (see ``HEConfig.shards``)."""
 
 
-def check_train_config(cfg: TrainConfig, positive: tuple[str, ...] = _POSITIVE) -> None:
+def check_train_config(cfg: HEConfig, positive: tuple[str, ...] = _POSITIVE) -> None:
     """Raise ConfigError naming the first invalid field of ``cfg`` and what it allows
     (``positive``: the count fields that must be >= 1)."""
     if cfg.env not in DOMAINS:
@@ -187,7 +187,7 @@ def check_train_config(cfg: TrainConfig, positive: tuple[str, ...] = _POSITIVE) 
 
 
 @dataclasses.dataclass(frozen=True)
-class GcrlConfig(TrainConfig):
+class GcrlConfig(HEConfig):
     """Goal-conditioned RL with a hand-set goal space (Choi et al. 2021, as Levy et al. compare
     against it): Hierarchical Empowerment's goal-conditioned levels, but every level's goal
     space is a fixed box of ``goal_half_width`` around h(s), never learnt (no goal-space
@@ -206,82 +206,3 @@ def check_gcrl_config(cfg: GcrlConfig) -> None:
     if len(cfg.goal_half_width) != cfg.k or any(not 0 < w < float("inf") for w in cfg.goal_half_width):
         raise ConfigError(f"goal_half_width: one finite entry > 0 per level (k={cfg.k}); got {cfg.goal_half_width}")
     check_train_config(cfg, tuple(name for name in _POSITIVE if name != "gs_iterations"))
-
-
-@dataclasses.dataclass(frozen=True)
-class Phase2Config:
-    """Phase 2: a goal-conditioned policy over a trained agent's frozen top-level skills.
-
-    The added level k has no goal-space policy: its actions are subgoals for level k-1,
-    squashed into the top level's learned goal space at the current state. Each episode
-    starts at the task's initial state with a goal drawn uniformly from a fixed region
-    around h(s0) (the paper's Table 2); the policy has ``n`` attempts (top-level skills)
-    to come within ``eps`` of it.
-    """
-
-    n: int = 10
-    """Maximum number of attempts (top-level skills) per episode (Table 2's n)."""
-    eps: float = 0.6
-    """Goal threshold: an episode succeeds once h(s) is within eps of its goal."""
-    region: tuple[float, ...] = (3.0, 3.0)
-    """Length of the goal region along each goal dimension (Table 2's last column)."""
-    region_offset: tuple[float, ...] = (0.0, 0.0)
-    """Centre of the goal region relative to h(s0) (Half Cheetah's regions lie ahead)."""
-    sigma: float = 0.6
-    """Std of the reward's Gaussian, log N(goal; h(s_t+1), sigma): phase 1's goal-conditioned
-    reward, with its own width (the paper leaves phase 2's reward open)."""
-    epochs: int = 30
-    """Training epochs (each: ``iterations`` x (collect, update), then a greedy evaluation)."""
-    num_envs: int = 64
-    """Environments simulated in parallel."""
-    iterations: int = 10
-    """Collect-then-update iterations per epoch."""
-    grad_steps: int = 50
-    """Gradient steps per iteration."""
-    batch_size: int = 128
-    """Minibatch size of every gradient step."""
-    replay_capacity: int = 100_000
-    """Phase-2 transitions (one per attempt) kept."""
-    eval_rounds: int = 2
-    """Greedy evaluation rounds per epoch (num_envs episodes each), for the metrics."""
-    hidden: tuple[int, ...] = (128, 128)
-    """Hidden layer widths of the phase-2 actor and critic."""
-    actor_lr: float = 3e-4
-    """Adam learning rate of the actor."""
-    critic_lr: float = 3e-4
-    """Adam learning rate of the critic."""
-    gamma: float = 0.95
-    """Discount per attempt (0 once the goal is reached)."""
-    tau: float = 0.01
-    """Polyak rate of the target networks."""
-    action_noise: float = 0.2
-    """Exploration std of the subgoals, in units of the top goal space's half-width."""
-    phase1_epoch: int = -1
-    """Phase-1 checkpoint to build on; -1 means the newest one of the run."""
-    seed: int = 0
-    """Seed of phase 2's randomness."""
-
-
-_P2_POSITIVE = ("n", "epochs", "num_envs", "iterations", "grad_steps", "batch_size",
-                "replay_capacity", "eval_rounds")
-
-
-def check_phase2_config(cfg: Phase2Config, goal_size: int | None = None) -> None:
-    """Raise ConfigError naming the first invalid field of ``cfg`` (``goal_size``: the domain's)."""
-    check_counts(cfg, _P2_POSITIVE)
-    for name in ("eps", "sigma"):
-        if not getattr(cfg, name) > 0:
-            raise ConfigError(f"{name}: must be > 0; got {getattr(cfg, name)}")
-    if not cfg.region or any(not v > 0 for v in cfg.region):
-        raise ConfigError(f"region: give one length > 0 per goal dimension; got {cfg.region}")
-    if goal_size is not None:
-        for name in ("region", "region_offset"):
-            if len(getattr(cfg, name)) != goal_size:
-                raise ConfigError(f"{name}: the domain's goal space has {goal_size} dimension(s); "
-                                  f"got {getattr(cfg, name)}")
-    check_learning(cfg, ("actor_lr", "critic_lr"), ("action_noise",))
-    if cfg.phase1_epoch < -1:
-        raise ConfigError(f"phase1_epoch: an epoch >= 0, or -1 for the newest; got {cfg.phase1_epoch}")
-    check_finite(cfg)
-    check_capacity(cfg, "replay_capacity", {"a minibatch (batch_size)": cfg.batch_size,
-                                            "one episode of attempts per environment (num_envs x n)": cfg.num_envs * cfg.n})

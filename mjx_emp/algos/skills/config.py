@@ -59,7 +59,7 @@ class SkillConfig:
     seed: int = 0
     shards: int = 1
     """Equal parts the environment batch, minibatch and replay are split into (data
-    parallelism; see TrainConfig.shards). Fixed for a run."""
+    parallelism; see HEConfig.shards). Fixed for a run."""
 
     @property
     def k(self) -> int:

@@ -10,13 +10,14 @@ import numpy as np
 import pytest
 from tiny import TINY, TINY_PHASE2, tiny_after_two_epochs
 
-from mjx_emp.algos.he.config import Phase2Config, check_phase2_config
-from mjx_emp.algos.he.presets import PHASE2_PRESETS, PRESETS, phase2_preset_for
+from mjx_emp.algos.he.presets import PRESETS
 from mjx_emp.algos.registry import all_presets
-from mjx_emp.downstream import TRAIN_EPOCH_TRACE, Phase2Trainer
 from mjx_emp.envs.registry import DOMAINS
 from mjx_emp.errors import ConfigError
 from mjx_emp.nets import LevelParams
+from mjx_emp.phase2.config import Phase2Config, check_phase2_config
+from mjx_emp.phase2.goal_spaces import TRAIN_EPOCH_TRACE, Phase2Trainer
+from mjx_emp.phase2.presets import PHASE2_PRESETS, phase2_preset_for
 from mjx_emp.tracing import traces
 
 
@@ -65,7 +66,7 @@ def test_subgoals_stay_inside_the_top_goal_space_even_with_exploration_noise(tin
     params = LevelParams(actor=state.learner.actor, box=state.goal_space_actors[k - 1], noise=jnp.asarray(2.0))
     keys = jax.random.split(jax.random.key(3), 256)
     subgoals = jax.vmap(trainer.hierarchy.policies[k], (None, 0, 0, 0))(params, obs, goals, keys)
-    shift, half_width = jax.vmap(trainer.phase1.learned_box(k - 1), (None, 0))(state.goal_space_actors[k - 1], obs)
+    shift, half_width = jax.vmap(trainer.phase1.nets.learned_box(k - 1), (None, 0))(state.goal_space_actors[k - 1], obs)
     assert (np.abs(np.asarray(subgoals - shift)) <= np.asarray(half_width) + 1e-5).all()
     assert np.asarray(jnp.abs(subgoals - shift) > 0.9 * half_width).any()  # the noise reaches the box's edge
 

@@ -30,13 +30,13 @@ import numpy as np
 import optax
 from flax import struct
 
-from mjx_emp.algos.he.agent import Trainer, TrainState
-from mjx_emp.algos.he.config import Phase2Config, check_phase2_config
+from mjx_emp.algos.he.agent import HEAgent, HEState
 from mjx_emp.counters import StepCounter
 from mjx_emp.learners.common import all_finite
 from mjx_emp.learners.ddpg import DDPGLearner, GoalTransition, ddpg_losses, ddpg_step, goal_transitions
 from mjx_emp.metrics import epoch_header, running_min_distance
 from mjx_emp.nets import MLP, LevelParams, goal_conditioned_q, goal_features, greedy_batch, level_policy
+from mjx_emp.phase2.config import Phase2Config, check_phase2_config
 from mjx_emp.replay import ReplayBuffer, flatten_rows, replay_init, replay_insert, replay_sample
 from mjx_emp.rollout.collect import CollectTotals, collect
 from mjx_emp.rollout.hierarchy import Hierarchy, Params, RolloutPlan, init_rollout
@@ -246,14 +246,14 @@ class Phase2Trainer(Phase2Loop):
     phase 2's), so equal configs share compiled programs.
     """
 
-    phase1: Trainer
+    phase1: HEAgent
     cfg: Phase2Config
     hierarchy: Hierarchy = dataclasses.field(init=False, compare=False, repr=False)
 
     def __post_init__(self):
         check_phase2_config(self.cfg, self.phase1.env.goal_size)
         k, phase1 = self.level, self.phase1.cfg
-        policy = level_policy(self.env, self.actor_net, self.phase1.learned_box(k - 1))
+        policy = level_policy(self.env, self.actor_net, self.phase1.nets.learned_box(k - 1))
         hierarchy = Hierarchy(
             self.env, self.phase1.hierarchy.policies + (policy,),
             n=tuple(phase1.n) + (self.cfg.n,), eps=tuple(phase1.eps) + (self.cfg.eps,),
@@ -271,11 +271,11 @@ class Phase2Trainer(Phase2Loop):
         return self.env.goal_size
 
     # ---- state ----------------------------------------------------------------------
-    def init(self, skills_state: TrainState, key: jax.Array | None = None) -> Phase2State:
+    def init(self, skills_state: HEState, key: jax.Array | None = None) -> Phase2State:
         """Fresh phase-2 networks and an empty replay on top of ``skills_state``'s frozen skills."""
         return _jit_init(self, skills_state, jax.random.key(self.cfg.seed) if key is None else key)
 
-    def _init(self, skills_state: TrainState, key: jax.Array) -> Phase2State:
+    def _init(self, skills_state: HEState, key: jax.Array) -> Phase2State:
         key, actor_key, critic_key = jax.random.split(key, 3)
         learner, replay = self.fresh_learner(actor_key, critic_key)
         return Phase2State(

@@ -1,6 +1,6 @@
 """Phase 2 over a flat skill learner's frozen skills (DIAYN, HIDIO, DADS, METRA).
 
-The same task, attempts, eps, reward and metric as HE's phase 2 (:mod:`mjx_emp.downstream`):
+The same task, attempts, eps, reward and metric as HE's phase 2 (:mod:`mjx_emp.phase2.goal_spaces`):
 an episode starts at the initial state with a goal uniform in the region; the phase-2
 policy has ``n`` attempts, each one skill z that the frozen skill policy executes greedily
 for the skill's length (from where the attempt begins, so the skill's descriptor counts
@@ -24,14 +24,13 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from mjx_emp.algos.he.config import Phase2Config, check_phase2_config
-from mjx_emp.algos.registry import LATENT_SKILLS, skill_kind
 from mjx_emp.algos.skills.agent import SkillAgent, SkillState
 from mjx_emp.counters import StepCounter
-from mjx_emp.downstream import Phase2Loop, Phase2Trainer
 from mjx_emp.envs.env import EnvState
 from mjx_emp.learners.ddpg import DDPGLearner, GoalTransition
 from mjx_emp.nets import goal_features
+from mjx_emp.phase2.config import Phase2Config, check_phase2_config
+from mjx_emp.phase2.goal_spaces import Phase2Loop
 from mjx_emp.replay import ReplayBuffer, flatten_rows, replay_insert
 from mjx_emp.rollout.collect import CollectTotals
 
@@ -174,11 +173,3 @@ class FlatPhase2Trainer(Phase2Loop):
         return state.replace(replay=replay, env_steps=state.env_steps.add(steps)), totals
 
 _jit_init = jax.jit(FlatPhase2Trainer._init, static_argnums=0)
-
-
-def make_phase2_trainer(skills: Any, cfg: Phase2Config) -> Phase2Trainer | FlatPhase2Trainer:
-    """Phase 2 over any algorithm's skills, as its registry entry says they are: subgoals in
-    learnt goal spaces (HE, GCRL) or a flat learner's z."""
-    if skill_kind(skills.cfg) == LATENT_SKILLS:
-        return FlatPhase2Trainer(skills, cfg)
-    return Phase2Trainer(skills, cfg)

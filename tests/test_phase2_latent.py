@@ -15,7 +15,8 @@ from tiny import TINY_PHASE2, run_cli
 
 from mjx_emp.algos.skills.agent import SkillAgent
 from mjx_emp.commands import Phase2Experiment, ResumeExperiment, TrainExperiment
-from mjx_emp.downstream_flat import FlatPhase2Trainer, make_phase2_trainer
+from mjx_emp.phase2.build import make_phase2_trainer
+from mjx_emp.phase2.latent import FlatPhase2Trainer
 from mjx_emp.run import jobs
 
 
