@@ -5,6 +5,7 @@ Bad input exits with code 2 and a message naming the field and what it allows.
 
 from __future__ import annotations
 
+import difflib
 import json
 import os
 import sys
@@ -258,6 +259,8 @@ def with_phase2_preset(args: list[str]) -> list[str]:
     """
     if not args or args[0] in PHASE2_PRESETS or args[0].startswith("-"):
         return args
+    if not Path(args[0]).exists() and close_names(args[0], PHASE2_PRESETS):
+        raise unknown_preset(args[0], PHASE2_PRESETS, "mjx-emp phase2 PRESET RUN_DIR")
     skills = store.read_run_config(Path(args[0]), "run_dir")
     preset = phase2_preset_for(skills)
     if preset is None:
@@ -266,6 +269,18 @@ def with_phase2_preset(args: list[str]) -> list[str]:
             f"before the run directory (mjx-emp phase2 PRESET RUN_DIR); presets: {sorted(PHASE2_PRESETS)}"
         )
     return [preset, *args]
+
+
+def close_names(name: str, known) -> list[str]:
+    """The known names closest to a misspelt one (at most three)."""
+    return difflib.get_close_matches(name, list(known), n=3, cutoff=0.6)
+
+
+def unknown_preset(name: str, known, usage: str) -> ConfigError:
+    """The error for a preset name that does not exist, suggesting the closest ones."""
+    closest = close_names(name, known)
+    hint = f"did you mean {', '.join(closest)}? " if closest else ""
+    return ConfigError(f"preset: {name!r} is unknown ({usage}); {hint}`mjx-emp presets` lists all {len(known)}")
 
 
 def canonical_args(argv: list[str]) -> list[str]:
@@ -281,6 +296,8 @@ def canonical_args(argv: list[str]) -> list[str]:
                 return ["resume", arg.split("=", 1)[1], *rest[:i], *rest[i + 1:]]
     if command == ["phase2"]:
         return ["phase2", *with_phase2_preset(rest)]
+    if command == ["train"] and rest and not rest[0].startswith("-") and rest[0] not in all_presets():
+        raise unknown_preset(rest[0], all_presets(), "mjx-emp train PRESET")
     return argv
 
 

@@ -451,6 +451,19 @@ def test_a_reader_leaves_a_checkpoint_being_written_alone(saved_run, tmp_path):
     assert writing.exists()
 
 
+def test_a_resume_to_fewer_epochs_than_done_is_refused_before_anything_is_rewritten(saved_run, tmp_path, capsys):
+    run_dir, _ = saved_run
+    copy = tmp_path / "run"
+    subprocess.run(["cp", "-r", str(run_dir), str(copy)], check=True)
+    config = json.dumps(config_to_json(TINY))
+    (copy / "config.json").write_text(config)
+    with pytest.raises(SystemExit) as stop:
+        cli.main(["resume", str(copy), "--epochs", "1"])
+    assert stop.value.code == 2
+    assert f"epochs: {copy} is at epoch 2; give at least that many; got 1" in capsys.readouterr().err
+    assert (copy / "config.json").read_text() == config
+
+
 def test_a_renamed_checkpoint_folder_is_refused_naming_both_epochs(saved_run, tmp_path):
     run_dir, states = saved_run
     copy = tmp_path / "run"

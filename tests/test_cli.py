@@ -48,6 +48,14 @@ def cli(*args: str) -> subprocess.CompletedProcess:
         (["render", "/nonexistent/mjx-emp-run", "--steps", "0"], "invalid configuration: steps: must be >= 1; got 0"),
         (["render", "/nonexistent/mjx-emp-run"],
          "invalid configuration: run_dir: '/nonexistent/mjx-emp-run' has no config.json; is it a run directory?"),
+        (["train", "point-mass-k1", "--num-devices", "-1"],
+         "invalid configuration: num_devices: must be >= 0 (0: every local device); got -1"),
+        (["resume", "/nonexistent/mjx-emp-run", "--num-devices", "-2"], "num_devices: must be >= 0"),
+        (["resume", "/nonexistent/mjx-emp-run", "--epochs", "0"], "epochs: must be >= 1; got 0"),
+        (["train", "ant-feld-cpu-k1"], "preset: 'ant-feld-cpu-k1' is unknown (mjx-emp train PRESET); did you mean "
+                                       "ant-field-cpu-k1,"),
+        (["phase2", "point-mas-k1", "runs/x"], "preset: 'point-mas-k1' is unknown (mjx-emp phase2 PRESET RUN_DIR); "
+                                               "did you mean point-mass-k1"),
         (["eval", "/nonexistent/mjx-emp-run", "--episodes", "0"],
          "invalid configuration: episodes: must be >= 1; got 0"),
         (["eval", "/nonexistent/mjx-emp-run"],

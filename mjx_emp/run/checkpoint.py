@@ -414,7 +414,8 @@ class Checkpoints:
             except CheckpointError as err:
                 if not fallback:
                     older = [e for e in epochs if e < epoch]
-                    hint = f" (pass --fallback to use an older one: epochs {older})" if older else ""
+                    use = "`mjx-emp resume --fallback` continues from" if self.read_only else "pass --fallback to use"
+                    hint = f" ({use} an older one: epochs {older})" if older else ""
                     raise CheckpointError(f"{err}{hint}") from err
                 logging.warning("skipping checkpoint of epoch %d: %s", epoch, err)
                 errors.append(str(err))

@@ -35,6 +35,11 @@ from mjx_emp.run.store import (
 )
 
 
+def _check_devices(num_devices: int) -> None:
+    if num_devices < 0:
+        raise ConfigError(f"num_devices: must be >= 0 (0: every local device); got {num_devices}")
+
+
 def _check_keep(keep_checkpoints: int) -> None:
     if keep_checkpoints < 1:
         raise ConfigError(f"keep_checkpoints: must be >= 1; got {keep_checkpoints}")
@@ -96,6 +101,7 @@ def train(exp: TrainExperiment, on_epoch: Callable[[dict], None] | None = None):
     algorithm = algorithm_of(exp.config)
     algorithm.check(exp.config)
     _check_keep(exp.keep_checkpoints)
+    _check_devices(exp.num_devices)
     cfg = split_for_devices(exp.config, exp.num_devices)
     algorithm.check(cfg)
     if several and not exp.run_dir:
@@ -119,11 +125,15 @@ def check_memory(program) -> None:
     preflight(program, program.cfg, agent.env.obs_size, getattr(program, "num_devices", 1))
 
 
-def _restore(run_dir: Path, trainer, template, fallback: bool = False, epoch: int | None = None):
-    """``(epoch, state)`` of ``run_dir``'s newest good checkpoint, or of ``epoch``'s, for ``trainer``."""
+def _restore(run_dir: Path, trainer, template, fallback: bool = False, epoch: int | None = None,
+             writer: bool = False):
+    """``(epoch, state)`` of ``run_dir``'s newest good checkpoint, or of ``epoch``'s, for ``trainer``.
+
+    Only the run's ``writer`` (a resume, holding the run's lock) may change the checkpoint folder
+    (set aside unusable newer checkpoints, remove half-written ones); any other caller reads."""
     from mjx_emp.run.checkpoint import Checkpoints
 
-    with Checkpoints(run_dir, config_type=type(trainer.cfg), read_only=True) as checkpoints:
+    with Checkpoints(run_dir, config_type=type(trainer.cfg), read_only=not writer) as checkpoints:
         if epoch is None:
             return checkpoints.restore_latest(template, trainer.cfg, fallback)
         if epoch not in checkpoints.epochs():
@@ -160,22 +170,27 @@ def load_run(run_dir: Path, fallback: bool = False, epochs: int | None = None, f
 def load_program(run_dir: Path, fallback: bool = False, epochs: int | None = None, field: str = "resume",
                  num_devices: int = 0):
     """What trains a run on (see :func:`training_program`) and its newest good checkpoint,
-    placed on the program's devices: ``(program, epoch, state)``."""
+    placed on the program's devices: ``(program, epoch, state)``. For the run's writer (a resume)."""
     import jax
 
     program = training_program(_with_epochs(read_run_config(Path(run_dir), field), epochs), num_devices)
-    epoch, state = _restore(Path(run_dir), program, jax.eval_shape(program.init), fallback)
+    epoch, state = _restore(Path(run_dir), program, jax.eval_shape(program.init), fallback, writer=True)
     return program, epoch, (program.place(state) if hasattr(program, "place") else state)
 
 
 def _resume(exp: ResumeExperiment, load: Callable):
     """Continue a run directory from its newest good checkpoint (``load`` restores it)."""
     _check_keep(exp.keep_checkpoints)
+    _check_devices(exp.num_devices)
+    if exp.epochs is not None and exp.epochs < 1:
+        raise ConfigError(f"epochs: must be >= 1; got {exp.epochs}")
     run_dir = Path(exp.resume)
     if not (run_dir / CONFIG_FILE).exists():  # a directory that is no run is refused before anything is written
         raise ConfigError(f"resume: {str(run_dir)!r} has no {CONFIG_FILE}; is it a run directory?")
     with run_lock(run_dir, "resume"):
         trainer, epoch, state = load(run_dir, exp.fallback, exp.epochs, field="resume")
+        if trainer.cfg.epochs < epoch:  # before anything is rewritten
+            raise ConfigError(f"epochs: {run_dir} is at epoch {epoch}; give at least that many; got {trainer.cfg.epochs}")
         from mjx_emp.run.checkpoint import Checkpoints
 
         print(f"resuming {run_dir} from epoch {epoch}", flush=True)
@@ -213,10 +228,12 @@ def train_phase2(exp: Phase2Experiment):
         return _train_new(trainer, trainer.init(skills_state), out, exp.keep_checkpoints, Phase2Config)
 
 
-def load_phase2(phase2_dir: Path, fallback: bool = False, epochs: int | None = None, field: str = "run_dir"):
+def load_phase2(phase2_dir: Path, fallback: bool = False, epochs: int | None = None, field: str = "run_dir",
+                writer: bool = False):
     """A phase-2 directory's trainer and newest good checkpoint: ``(trainer, epoch, state)``.
 
     The directory stands on its own: it holds the phase-1 config and the frozen skills.
+    ``writer``: the caller holds the directory's lock to continue it (see :func:`_restore`).
     """
     import jax
 
@@ -226,10 +243,10 @@ def load_phase2(phase2_dir: Path, fallback: bool = False, epochs: int | None = N
     cfg = _with_epochs(read_run_config(phase2_dir, field, Phase2Config), epochs)
     trainer = make_phase2_trainer(make_agent(read_run_config(phase2_dir, field, file=SKILLS_FILE)), cfg)
     template = jax.eval_shape(trainer.init, jax.eval_shape(trainer.phase1.init))
-    epoch, state = _restore(phase2_dir, trainer, template, fallback)
+    epoch, state = _restore(phase2_dir, trainer, template, fallback, writer=writer)
     return trainer, epoch, state
 
 
 def resume_phase2(exp: ResumeExperiment):
     """Continue a phase-2 directory from its newest good checkpoint; returns the final state."""
-    return _resume(exp, load_phase2)
+    return _resume(exp, functools.partial(load_phase2, writer=True))
