@@ -26,7 +26,7 @@ from mjx_emp.errors import CheckpointError, CheckpointWriteError, TrainingDiverg
 from mjx_emp.run.checkpoint import Checkpoints, config_mismatches, layout_mismatch, layout_of, pack, unpack
 from mjx_emp.run.jobs import load_run
 from mjx_emp.run.loop import train_epochs
-from mjx_emp.run.store import keep_metrics_through
+from mjx_emp.run.store import keep_metrics_through, read_metrics
 
 
 def host_leaves(tree) -> list[np.ndarray]:
@@ -185,6 +185,29 @@ def test_metrics_after_the_resumed_epoch_are_dropped(tmp_path):
     path.write_text("".join(json.dumps({"epoch": e}) + "\n" for e in (1, 2, 3)) + '{"epoch": 4, "lev')
     keep_metrics_through(path, 2)
     assert [json.loads(line)["epoch"] for line in path.read_text().splitlines()] == [1, 2]
+
+
+def test_damaged_metrics_lines_are_named_and_no_valid_line_is_lost(tmp_path, capsys):
+    path = tmp_path / "metrics.jsonl"
+    lines = [json.dumps({"epoch": 1}), "garbled{", json.dumps({"epoch": 2}), json.dumps([3]),
+             json.dumps({"epoch": 3})]
+    path.write_bytes(("\n".join(lines) + "\n").encode() + b'{"epoch": 4, "l\xff\xfe')
+    assert [m["epoch"] for m in read_metrics(tmp_path)] == [1, 2, 3]
+    err = capsys.readouterr().err
+    assert "line 2: not JSON" in err and "line 4: not an epoch's metrics" in err and "line 6: not JSON" in err
+    keep_metrics_through(path, 5)
+    assert [json.loads(line)["epoch"] for line in path.read_text().splitlines()] == [1, 2, 3]
+    assert "no metrics line for epochs [4, 5]" in capsys.readouterr().err
+
+
+def test_plot_reads_a_metrics_file_with_a_torn_last_line(tmp_path):
+    from mjx_emp.viz.plots import plot_goal_space_growth
+
+    path = tmp_path / "metrics.jsonl"
+    line = {"epoch": 1, "env_steps": 10.0, "levels": [{"level": 0, "volume": 1.0, "success": 0.5, "shift": [0.0, 0.0],
+                                                       "half_width": [0.5, 0.5]}]}
+    path.write_text(json.dumps(line) + "\n" + json.dumps(line)[:20])
+    assert plot_goal_space_growth(read_metrics(tmp_path), tmp_path / "growth.png").exists()
 
 
 # ---- the command line, in separate processes that are killed for real ---------------------

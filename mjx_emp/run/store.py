@@ -12,6 +12,7 @@ import contextlib
 import dataclasses
 import json
 import os
+import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -88,25 +89,62 @@ def read_run_config(run_dir: Path, field: str = "resume", config_type: type | No
         raise ConfigError(f"{field}: {path} is not a valid run config ({err})") from err
 
 
+def parse_metrics(text: str) -> tuple[list[tuple[str, dict]], list[str]]:
+    """metrics.jsonl's text read tolerantly: ``(valid, problems)``. ``valid`` holds each good
+    line (the raw line and its dict, an object with an integer ``epoch``) in order; ``problems``
+    names every other non-empty line by number and why (a line a kill cut short, garbled
+    bytes, JSON of the wrong shape), so nothing is skipped without a word."""
+    valid, problems = [], []
+    for number, line in enumerate(text.splitlines(), start=1):
+        if not line.strip():
+            continue
+        try:
+            entry = json.loads(line)
+        except json.JSONDecodeError as err:
+            problems.append(f"line {number}: not JSON ({err.msg})")
+            continue
+        if not isinstance(entry, dict) or not isinstance(entry.get("epoch"), int):
+            problems.append(f"line {number}: not an epoch's metrics (an object with an integer 'epoch')")
+            continue
+        valid.append((line, entry))
+    return valid, problems
+
+
+def read_metrics_text(path: Path) -> str:
+    """A metrics file's text; bytes that are not UTF-8 become U+FFFD, so their line is reported, not fatal."""
+    return path.read_bytes().decode("utf-8", errors="replace")
+
+
+def warn_metrics(path: Path, problems: list[str], what: str) -> None:
+    """Say on stderr which lines of ``path`` were skipped and what happens to them."""
+    for problem in problems:
+        print(f"mjx-emp: {path}: {problem}; {what}", file=sys.stderr, flush=True)
+
+
 def read_metrics(run_dir: Path) -> list[dict]:
-    """The per-epoch metric lines of a run directory, in order."""
+    """The per-epoch metric lines of a run directory, in order; unreadable lines are reported
+    on stderr and skipped (:func:`parse_metrics`)."""
     path = Path(run_dir) / METRICS_FILE
-    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    valid, problems = parse_metrics(read_metrics_text(path))
+    warn_metrics(path, problems, "skipped")
+    return [entry for _, entry in valid]
 
 
 def keep_metrics_through(path: Path, epoch: int) -> None:
-    """Drop metric lines of epochs after ``epoch`` (written after the checkpoint we resume from)."""
+    """Rewrite metrics.jsonl (atomically) with the valid lines of epochs up to ``epoch``: lines
+    written after the checkpoint a run resumes from are dropped, unreadable lines are reported
+    and dropped, no valid line before them is lost. Epochs up to ``epoch`` without a line are
+    named on stderr (their checkpoints exist; their metrics do not)."""
     if not path.exists():
         return
-    lines = [line for line in path.read_text().splitlines() if line.strip()]
-    kept = []
-    for line in lines:
-        try:
-            if json.loads(line)["epoch"] <= epoch:
-                kept.append(line)
-        except (json.JSONDecodeError, KeyError):
-            break  # a line cut short by a kill: nothing after it is trustworthy
-    write_atomically(path, "".join(line + "\n" for line in kept))
+    valid, problems = parse_metrics(read_metrics_text(path))
+    warn_metrics(path, problems, "dropped on resume")
+    kept = [(line, entry) for line, entry in valid if entry["epoch"] <= epoch]
+    missing = sorted(set(range(1, epoch + 1)) - {entry["epoch"] for _, entry in kept})
+    if missing:
+        print(f"mjx-emp: {path}: no metrics line for epochs {missing} (resuming from epoch {epoch})",
+              file=sys.stderr, flush=True)
+    write_atomically(path, "".join(line + "\n" for line, _ in kept))
 
 
 def _holds_a_run(run_dir: Path) -> bool:
