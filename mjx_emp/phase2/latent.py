@@ -89,9 +89,7 @@ class FlatPhase2Trainer(Phase2Loop):
 
     def as_skill(self, unit: jax.Array) -> jax.Array:
         """A point of [-1, 1]^d as a skill the learner trained: itself, or for METRA its direction."""
-        if self.phase1.method != "metra":
-            return unit
-        return unit / jnp.maximum(jnp.linalg.norm(unit, axis=-1, keepdims=True), 1e-6)
+        return self.phase1.skill_method.as_skill(unit)
 
     def choose(self, actor: Params, obs: jax.Array, goal: jax.Array) -> jax.Array:
         """The greedy skill for (state, goal), one row or a batch."""

@@ -22,11 +22,8 @@ import optax
 from flax import struct
 
 from mjx_emp.algos.skills import objectives as obj
+from mjx_emp.algos.skills.methods import METHODS, ModelContext, ModelInfo, SkillMethod
 from mjx_emp.algos.skills.config import (
-    DadsConfig,
-    DiaynConfig,
-    HidioConfig,
-    MetraConfig,
     SkillConfig,
     check_skill_config,
 )
@@ -35,7 +32,6 @@ from mjx_emp.envs.env import Env, EnvState, make_env
 from mjx_emp.learners.common import all_finite
 from mjx_emp.learners.sac import SAC, SACBatch, SACLearner
 from mjx_emp.metrics import epoch_header
-from mjx_emp.nets import MLP
 from mjx_emp.replay import ReplayBuffer, flatten_rows, replay_init, replay_insert, replay_sample
 from mjx_emp.rollout.flat import FlatState, flat_init, flat_rollout
 from mjx_emp.shards import ShardAxes, mean_gradients, shard_all, shard_mean, shard_sum
@@ -98,7 +94,6 @@ class IterationStats:
     flip_resets: jax.Array
 
 
-METHOD_NAMES = {DiaynConfig: "diayn", HidioConfig: "hidio", DadsConfig: "dads", MetraConfig: "metra"}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -112,14 +107,20 @@ class SkillAgent:
     env: Env = dataclasses.field(init=False, compare=False, repr=False)
 
     def __post_init__(self):
-        if type(self.cfg) not in METHOD_NAMES:
-            raise TypeError(f"cfg: a {type(self.cfg).__name__}; expected one of {[c.__name__ for c in METHOD_NAMES]}")
+        if type(self.cfg) not in METHODS:
+            raise TypeError(f"cfg: a {type(self.cfg).__name__}; expected one of {[c.__name__ for c in METHODS]}")
         check_skill_config(self.cfg)
         object.__setattr__(self, "env", make_env(self.cfg.env))
 
     @property
+    def skill_method(self) -> SkillMethod:
+        """What this learner's objective does (DIAYN, HIDIO, DADS or METRA)."""
+        return METHODS[type(self.cfg)]
+
+    @property
     def method(self) -> str:
-        return METHOD_NAMES[type(self.cfg)]
+        """The learner's name, for reports."""
+        return self.skill_method.name
 
     # ---- networks -------------------------------------------------------------------
     @functools.cached_property
@@ -136,20 +137,11 @@ class SkillAgent:
     @functools.cached_property
     def model_net(self):
         """DIAYN/HIDIO: posterior q(z|...); DADS: mean of the descriptor's change; METRA: phi."""
-        hidden, d = tuple(self.cfg.hidden), self.cfg.skill_dim
-        if self.method in ("diayn", "hidio"):
-            return obj.GaussianHead(hidden, d)
-        return MLP(hidden, self.descriptor_size if self.method == "dads" else d)
+        return self.skill_method.model_net(tuple(self.cfg.hidden), self.cfg.skill_dim, self.descriptor_size)
 
     def model_input(self, batch: SkillTransition) -> jax.Array:
         """What the model sees of a minibatch (at the state it judges)."""
-        after = obj.descriptor(self.env, batch.next_obs, batch.s0)
-        if self.method == "diayn":
-            return after
-        if self.method == "hidio":
-            return jnp.concatenate([after, batch.action], axis=-1)
-        before = obj.descriptor(self.env, batch.obs, batch.s0)
-        return before if self.method == "metra" else jnp.concatenate([before, batch.skill], axis=-1)
+        return self.skill_method.model_input(self.env, batch)
 
     def policy_input(self, obs: jax.Array, s0: jax.Array, skill: jax.Array) -> jax.Array:
         """pi's and Q's input: the state's descriptor and the skill."""
@@ -157,11 +149,7 @@ class SkillAgent:
 
     def sample_skill(self, key: jax.Array, shape: tuple[int, ...] = ()) -> jax.Array:
         """z from the prior: uniform on [-1, 1]^d, or for METRA a direction on the unit sphere."""
-        d = self.cfg.skill_dim
-        if self.method == "metra":
-            z = jax.random.normal(key, shape + (d,))
-            return z / jnp.linalg.norm(z, axis=-1, keepdims=True)
-        return jax.random.uniform(key, shape + (d,), minval=-1.0, maxval=1.0)
+        return self.skill_method.sample_skill(key, shape, self.cfg.skill_dim)
 
     def start(self, _: Any, key: jax.Array) -> tuple[EnvState, jax.Array]:
         """A new episode: the initial state and a skill from the prior."""
@@ -220,59 +208,10 @@ class SkillAgent:
 
     # ---- the objectives -------------------------------------------------------------
     def model_step(self, model: SkillModel, batch: SkillTransition, key: jax.Array):
-        """Train the method's model on ``batch``, then reward ``batch`` with the new model.
-
-        Returns (model, reward [B], [model loss, posterior std, lambda, constraint]).
-        """
-        x, d = self.model_input(batch), self.cfg.skill_dim
-        nan = jnp.float32(jnp.nan)
-
-        if self.method in ("diayn", "hidio"):
-            def log_q(params):
-                mean, log_std = self.model_net.apply(params, x)
-                return obj.diagonal_gaussian_log_prob(batch.skill, mean, log_std), log_std
-
-            def loss(params):
-                return -log_q(params)[0].mean()
-        elif self.method == "dads":
-            change = obj.descriptor(self.env, batch.next_obs, batch.s0) - obj.descriptor(self.env, batch.obs, batch.s0)
-
-            def loss(params):
-                return -obj.unit_gaussian_log_prob(change, self.model_net.apply(params, x)).mean()
-        else:
-            phi_inputs = (x, obj.descriptor(self.env, batch.next_obs, batch.s0))
-
-            def loss(params):
-                phi_obs, phi_next = (self.model_net.apply(params, y) for y in phi_inputs)
-                return obj.metra_phi_loss(phi_obs, phi_next, batch.skill, jnp.exp(model.log_lam), self.cfg.dual_slack)
-
-        value, grad = jax.value_and_grad(loss)(model.params)
-        updates, opt = self.model_tx.update(grad, model.opt, model.params)
-        params = optax.apply_updates(model.params, updates)
-        model = model.replace(params=params, opt=opt)
-
-        if self.method in ("diayn", "hidio"):
-            log_q_new, log_std = log_q(params)
-            reward = obj.posterior_reward(log_q_new, d)
-            return model, reward, jnp.stack([value, jnp.exp(log_std).mean(), nan, nan])
-        if self.method == "dads":
-            prior = self.sample_skill(key, (self.cfg.prior_samples, batch.skill.shape[0]))
-            state_part = x[..., : -d]
-
-            def log_q_with(skill):
-                mean = self.model_net.apply(params, jnp.concatenate([state_part, skill], axis=-1))
-                return obj.unit_gaussian_log_prob(change, mean)
-
-            reward = obj.dads_reward(log_q_with(batch.skill), jax.vmap(log_q_with)(prior))
-            return model, reward, jnp.stack([value, nan, nan, nan])
-        phi_obs, phi_next = (self.model_net.apply(params, y) for y in phi_inputs)
-        constraint = obj.metra_constraint(phi_obs, phi_next, self.cfg.dual_slack)
-        lam_value, lam_grad = jax.value_and_grad(obj.metra_dual_loss)(model.log_lam, constraint)
-        del lam_value
-        lam_updates, lam_opt = self.model_tx.update(lam_grad, model.lam_opt, model.log_lam)
-        model = model.replace(log_lam=optax.apply_updates(model.log_lam, lam_updates), lam_opt=lam_opt)
-        reward = obj.metra_reward(phi_obs, phi_next, batch.skill)
-        return model, reward, jnp.stack([value, nan, jnp.exp(model.log_lam), constraint.mean()])
+        """Train the method's model on ``batch``, then reward ``batch`` with the new model:
+        (model, reward [B], :class:`~mjx_emp.algos.skills.methods.ModelInfo`)."""
+        context = ModelContext(self.env, self.cfg, self.model_net, self.model_tx, self.sample_skill)
+        return self.skill_method.model_step(context, model, batch, key)
 
     def learn_step(self, carry: tuple[SACLearner, SkillModel], replay: ReplayBuffer, key: jax.Array):
         """One gradient step: the model, then SAC on the model's reward."""
@@ -305,10 +244,10 @@ class SkillAgent:
         def learn(carry):
             carry, (sac_info, model_info, reward) = jax.lax.scan(
                 lambda c, k: self.learn_step(c, replay, k), carry, jax.random.split(learn_key, cfg.grad_steps))
-            return carry, sac_info.mean(0), model_info.mean(0), reward.mean()
+            return carry, sac_info.mean(0), jax.tree.map(lambda x: x.mean(0), model_info), reward.mean()
 
         def wait(carry):
-            return carry, jnp.full(5, jnp.nan), jnp.full(4, jnp.nan), jnp.float32(jnp.nan)
+            return carry, jnp.full(5, jnp.nan), ModelInfo.nan(), jnp.float32(jnp.nan)
 
         axes = self.shard_axes
         learned = shard_all(replay.size >= cfg.min_replay, axes)  # every shard learns from the same iteration on
@@ -318,8 +257,9 @@ class SkillAgent:
             (jnp.int32(cfg.collect_steps * cfg.num_envs), ended.sum(), jnp.where(ended, moved, 0.0).sum(),
              rollout.env.flip_resets.sum() - flips_before), axes)
         stats = IterationStats(
-            env_steps=env_steps, learned=learned, sac=sac_info, model_loss=model_info[0], reward=reward,
-            posterior_std=model_info[1], dual_lambda=model_info[2], constraint=model_info[3],
+            env_steps=env_steps, learned=learned, sac=sac_info, model_loss=model_info.loss, reward=reward,
+            posterior_std=model_info.posterior_std, dual_lambda=model_info.dual_lambda,
+            constraint=model_info.constraint,
             episodes=episodes, displacement=moved_sum / jnp.maximum(episodes, 1), flip_resets=flips,
         )
         state = state.replace(sac=sac, model=model, replay=replay, rollout=rollout, key=key,
@@ -374,7 +314,7 @@ class SkillAgent:
         """DIAYN and HIDIO: the mean standard deviation of q(z | ...) over ``rows`` replayed
         transitions (Levy et al.'s diagnostic: it stays large when skills overlap); None for
         the other methods or an empty replay."""
-        if self.method not in ("diayn", "hidio") or int(state.replay.size) == 0:
+        if not self.skill_method.has_posterior or int(state.replay.size) == 0:
             return None
         batch = replay_sample(state.replay, key, rows)
         _, log_std = self.model_net.apply(state.model.params, self.model_input(batch))
@@ -416,7 +356,7 @@ class SkillAgent:
             value = metrics[name]
             return "-" if value is None else f"{value:.3g}"
 
-        extra = {"diayn": "posterior_std", "hidio": "posterior_std", "metra": "dual_lambda"}.get(self.method)
+        extra = self.skill_method.reports
         tail = f"  {extra.replace('_', ' ')} {show(extra)}" if extra else ""
         return (f"{metrics['env_steps']:.3g} env steps  {metrics['env_steps_per_s']:.3g} steps/s  "
                 f"reward {show('reward')}  displacement {show('displacement')}  alpha {show('alpha')}{tail}")
