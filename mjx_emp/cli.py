@@ -170,11 +170,11 @@ def evaluate(exp: EvalExperiment) -> dict:
     from mjx_emp.metrics import LEVEL_FIGURES, aggregate_agent, aggregate_phase2, aggregate_runs
     from mjx_emp.run.evaluate import COVERAGE_SKILLS, phase1_figures, phase2_figures, skill_figures
 
-    algorithms = {algorithm_of(store.read_run_config(Path(d), "run_dirs")) for d in exp.run_dirs}
+    algorithms = {algorithm.name: algorithm
+                  for algorithm in (algorithm_of(store.read_run_config(Path(d), "run_dirs")) for d in exp.run_dirs)}
     if len(algorithms) > 1:
-        raise ConfigError("run_dirs: runs of one algorithm at a time (they are aggregated); got "
-                          f"{sorted(a.name for a in algorithms)}")
-    if next(iter(algorithms)).skills == LATENT_SKILLS:  # no goal spaces to report
+        raise ConfigError(f"run_dirs: runs of one algorithm at a time (they are aggregated); got {sorted(algorithms)}")
+    if next(iter(algorithms.values())).skills == LATENT_SKILLS:  # no goal spaces to report
         return evaluate_skills(exp, skill_figures)
     runs = []
     for run_dir in exp.run_dirs:
