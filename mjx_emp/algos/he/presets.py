@@ -70,6 +70,11 @@ HALF_CHEETAH_CPU_K2 = dataclasses.replace(
 # ant-field-cpu-k1 with hindsight goals and a LayerNorm critic (docs/presets.md#hindsight-goals-and-layernorm).
 ANT_FIELD_CPU_K1_HER_LN = dataclasses.replace(ANT_FIELD_CPU_K1, her=0.5, critic_layer_norm=True, epochs=120)
 
+# The CPU Ant presets with the constraint solver at 4 iterations instead of the model file's 1
+# (docs/presets.md#the-accurate-physics-presets).
+ANT_FIELD_CPU_K1_4ITER = dataclasses.replace(ANT_FIELD_CPU_K1, solver_iterations=4)
+ANT_FIELD_CPU_K2_4ITER = dataclasses.replace(ANT_FIELD_CPU_K2, solver_iterations=4)
+
 PRESETS: dict[str, tuple[str, HEConfig]] = {
     "point-mass-k1": ("CPU default: point mass, one level of n=10 skills", POINT_MASS_K1),
     "point-mass-k2": ("CPU: point mass, two levels n=(10, 5)", POINT_MASS_K2),
@@ -79,6 +84,10 @@ PRESETS: dict[str, tuple[str, HEConfig]] = {
     "ant-field-cpu-k2-wide": ("CPU: ant-field-cpu-k2 with level 1's sigma_gs doubled: larger boxes, "
                               "lower success", ANT_FIELD_CPU_K2_WIDE),
     "half-cheetah-cpu-k2": ("CPU: the paper's Half Cheetah, two levels n=(20, 5)", HALF_CHEETAH_CPU_K2),
+    "ant-field-cpu-k1-4iter": ("CPU: ant-field-cpu-k1 with 4 solver iterations (accurate contacts)",
+                               ANT_FIELD_CPU_K1_4ITER),
+    "ant-field-cpu-k2-4iter": ("CPU: ant-field-cpu-k2 with 4 solver iterations (accurate contacts)",
+                               ANT_FIELD_CPU_K2_4ITER),
     "ant-field-cpu-k1-her-ln": ("CPU: ant-field-cpu-k1 with hindsight goals and a LayerNorm critic, 120 epochs",
                                 ANT_FIELD_CPU_K1_HER_LN),
     "ant-field-small-k1": ("Table 1: Ant Field Small, k=1",
