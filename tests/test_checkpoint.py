@@ -387,7 +387,8 @@ def test_a_second_writer_is_refused_naming_the_holder_and_a_killed_holders_lock_
         process.kill()
         process.wait()
     assert (run_dir / ".lock").read_text().startswith(f"{process.pid} on ")  # left behind by the killed writer
-    resumed = run_cli("train", "--resume", str(run_dir), "--epochs", "2")
+    newest = max(int(p.name) for p in (run_dir / "checkpoints").iterdir() if p.name.isdigit())
+    resumed = run_cli("train", "--resume", str(run_dir), "--epochs", str(newest + 1))
     assert resumed.returncode == 0, resumed.stderr
     assert f"taking over the lock of {run_dir} left by process {process.pid}" in resumed.stdout
     assert (run_dir / ".lock").read_text() == ""  # released when the resume ended
