@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from mjx_emp.algos.registry import GOAL_SPACES, algorithm_of, all_presets, skill_kind
+from mjx_emp.checks import config_from_dict
 from mjx_emp.commands import TrainExperiment
 from mjx_emp.errors import ConfigError
 from mjx_emp.run import jobs, store
@@ -82,12 +83,8 @@ def config(preset: str, **changes: Any) -> Any:
     known = presets()
     if preset not in known:
         raise ConfigError(f"preset: {preset!r} is unknown; allowed values: {sorted(known)}")
-    cfg = known[preset]
-    fields = {field.name for field in dataclasses.fields(cfg)}
-    unknown = sorted(set(changes) - fields)
-    if unknown:
-        raise ConfigError(f"{unknown[0]}: not a field of {type(cfg).__name__}; fields: {sorted(fields)}")
-    cfg = dataclasses.replace(cfg, **changes)
+    base = known[preset]
+    cfg = config_from_dict({**dataclasses.asdict(base), **changes}, type(base))
     algorithm_of(cfg).check(cfg)
     return cfg
 

@@ -21,12 +21,12 @@ from tiny import SMALL, TINY, mjx_emp, run_cli, tiny_after_two_epochs, tiny_trai
 
 from mjx_emp import cli
 from mjx_emp.algos.he.agent import HEAgent
-from mjx_emp.algos.registry import config_from_json, config_to_json
+from mjx_emp.algos.registry import config_from_json
 from mjx_emp.errors import CheckpointError, CheckpointWriteError, TrainingDiverged
 from mjx_emp.run.checkpoint import Checkpoints, config_mismatches, layout_mismatch, layout_of, pack, unpack
 from mjx_emp.run.jobs import load_run
 from mjx_emp.run.loop import train_epochs
-from mjx_emp.run.store import keep_metrics_through, read_metrics
+from mjx_emp.run.store import keep_metrics_through, read_metrics, write_config
 
 
 def host_leaves(tree) -> list[np.ndarray]:
@@ -463,7 +463,7 @@ def test_a_reader_leaves_a_checkpoint_being_written_alone(saved_run, tmp_path):
     run_dir, states = saved_run
     copy = tmp_path / "run"
     subprocess.run(["cp", "-r", str(run_dir), str(copy)], check=True)
-    (copy / "config.json").write_text(json.dumps(config_to_json(TINY)))
+    write_config(copy, TINY)
     writing = copy / "checkpoints" / "3.orbax-checkpoint-tmp"
     writing.mkdir()
     agent, epoch, restored = load_run(copy)
@@ -479,8 +479,8 @@ def test_a_resume_to_fewer_epochs_than_done_is_refused_before_anything_is_rewrit
     run_dir, _ = saved_run
     copy = tmp_path / "run"
     subprocess.run(["cp", "-r", str(run_dir), str(copy)], check=True)
-    config = json.dumps(config_to_json(TINY))
-    (copy / "config.json").write_text(config)
+    write_config(copy, TINY)
+    config = (copy / "config.json").read_text()
     with pytest.raises(SystemExit) as stop:
         cli.main(["resume", str(copy), "--epochs", "1"])
     assert stop.value.code == 2
