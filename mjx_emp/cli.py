@@ -296,8 +296,10 @@ def canonical_args(argv: list[str]) -> list[str]:
                 return ["resume", arg.split("=", 1)[1], *rest[:i], *rest[i + 1:]]
     if command == ["phase2"]:
         return ["phase2", *with_phase2_preset(rest)]
-    if command == ["train"] and rest and not rest[0].startswith("-") and rest[0] not in all_presets():
-        raise unknown_preset(rest[0], all_presets(), "mjx-emp train PRESET")
+    if command == ["train"] and rest and not rest[0].startswith("-"):
+        presets = all_presets()
+        if rest[0] not in presets:
+            raise unknown_preset(rest[0], presets, "mjx-emp train PRESET")
     return argv
 
 
@@ -355,11 +357,8 @@ def parse(argv: list[str]) -> tuple[Any, Any]:
         Annotated[make_type(), tyro.conf.subcommand(name, description=" ".join(help_text.split()))]
         for name, (make_type, _, help_text) in COMMANDS.items()
     )]
-    chosen = argv[0] if argv and argv[0] in COMMANDS else None
-    exp = tyro.cli(choices, args=argv, prog="mjx-emp")
-    if chosen is None:  # tyro exits on a missing or unknown command; anything else is a bug
-        raise AssertionError(f"tyro parsed {argv} without a command")
-    return COMMANDS[chosen][1], exp
+    exp = tyro.cli(choices, args=argv, prog="mjx-emp")  # exits on a missing or unknown command
+    return COMMANDS[argv[0]][1], exp
 
 
 NO_COMPILE_CACHE = "--no-compile-cache"
