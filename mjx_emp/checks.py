@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import types
+import typing
 from collections.abc import Sequence
 
 from mjx_emp.errors import ConfigError
@@ -79,10 +81,49 @@ def check_learning(cfg, learning_rates: tuple[str, ...], noises: tuple[str, ...]
             raise ConfigError(f"{name}: must be >= 0; got {getattr(cfg, name)}")
 
 
+def compile_identity(cfg):
+    """A config as far as compiled programs see it: every field but ``epochs``, which only the
+    epoch loop reads. Agents compare and hash by it, so a run resumed with a new epoch count
+    (or one trained for another) reuses the programs already compiled in the process."""
+    return dataclasses.replace(cfg, epochs=0) if any(f.name == "epochs" for f in dataclasses.fields(cfg)) else cfg
+
+
+def matches_type(value, annotation) -> bool:
+    """Whether a JSON value fits a config field's annotation: ``int`` (not a bool, not 3.5),
+    ``float`` (an int too), ``bool``, ``str``, ``tuple[X, ...]``, ``Literal[...]``, ``X | None``."""
+    origin, args = typing.get_origin(annotation), typing.get_args(annotation)
+    if origin is typing.Literal:
+        return value in args
+    if origin in (typing.Union, types.UnionType):
+        return any(matches_type(value, arg) for arg in args)
+    if origin is tuple:
+        element = args[0] if args else typing.Any
+        return isinstance(value, (list, tuple)) and all(matches_type(v, element) for v in value)
+    if annotation is type(None):
+        return value is None
+    if annotation is bool:
+        return isinstance(value, bool)
+    if annotation is int:
+        return isinstance(value, int) and not isinstance(value, bool)
+    if annotation is float:
+        return isinstance(value, (int, float)) and not isinstance(value, bool)
+    if annotation is str:
+        return isinstance(value, str)
+    return True  # any other annotation is the dataclass's own business
+
+
 def config_from_dict(values: dict, config_type: type):
-    """Rebuild a config dataclass from its JSON form (lists back to tuples); unknown fields are an error."""
+    """Rebuild a config dataclass from its JSON form (lists back to tuples); an unknown field, or
+    a value of the wrong type (a fractional epoch count, a string where a number belongs), is a
+    ConfigError naming the field."""
     fields = {f.name: f for f in dataclasses.fields(config_type)}
     unknown = sorted(set(values) - set(fields))
     if unknown:
         raise ConfigError(f"{unknown[0]}: not a {config_type.__name__} field; allowed: {sorted(fields)}")
+    hints = typing.get_type_hints(config_type)
+    for name, value in values.items():
+        if not matches_type(value, hints[name]):
+            hint = hints[name]
+            expected = str(hint).replace("typing.", "") if typing.get_origin(hint) else getattr(hint, "__name__", hint)
+            raise ConfigError(f"{name}: must be {expected}; got {value!r}")
     return config_type(**{name: tuple(v) if isinstance(v, list) else v for name, v in values.items()})

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import difflib
 import json
+import math
 import os
 import sys
 import time
@@ -35,10 +36,12 @@ from mjx_emp.errors import (
     Interrupted,
     RenderError,
     TrainingDiverged,
+    WriteError,
 )
 from mjx_emp.phase2.presets import PHASE2_PRESETS, phase2_preset_for
 from mjx_emp.run import jobs, store
 from mjx_emp.run.preflight import explain_out_of_memory
+from mjx_emp.tables import spread_text
 
 
 def validate_rollout(cfg: RolloutExperiment) -> None:
@@ -119,27 +122,40 @@ def rollout(cfg: RolloutExperiment) -> None:
 
 
 def plot(exp: PlotExperiment) -> None:
-    """Draw a run's pictures into RUN_DIR/plots/ and print their paths."""
-    from mjx_emp.viz.plots import plot_any_run
+    """Draw one run's pictures into RUN_DIR/plots/, or compare several runs in ``--out``; print the paths."""
+    from mjx_emp.viz.plots import plot_any_run, plot_runs
 
-    run_dir = Path(exp.run_dir)
-    if not (run_dir / store.METRICS_FILE).exists():
-        raise ConfigError(f"run_dir: {str(run_dir)!r} has no {store.METRICS_FILE}; is it a run directory?")
-    for path in plot_any_run(run_dir):
+    if not exp.run_dirs:
+        raise ConfigError("run_dirs: give at least one run directory, e.g. `mjx-emp plot runs/pm1`")
+    for run_dir in map(Path, exp.run_dirs):
+        if not (run_dir / store.METRICS_FILE).exists():
+            raise ConfigError(f"run_dir: {str(run_dir)!r} has no {store.METRICS_FILE}; is it a run directory?")
+        if not store.read_metrics(run_dir):
+            raise ConfigError(f"run_dir: {str(run_dir)!r} has no finished epoch to plot; plot it once an epoch has "
+                              f"ended")
+    if len(set(Path(d).resolve() for d in exp.run_dirs)) < len(exp.run_dirs):
+        raise ConfigError(f"run_dirs: each run counts once (seeds are averaged); got {list(exp.run_dirs)}")
+    print(f"plotting {', '.join(exp.run_dirs)} ...", flush=True)
+    paths = plot_any_run(Path(exp.run_dirs[0])) if len(exp.run_dirs) == 1 else \
+        plot_runs([Path(d) for d in exp.run_dirs], Path(exp.out or "plots"))
+    for path in paths:
         print(path)
 
 
 def render(exp: RenderExperiment) -> None:
-    """Write a GIF of a run's greedy top-level skill chain (or phase-2 policy), every level's goal drawn;
-    for a flat skill learner, its greedy skills from the prior one after another."""
+    """Write a video of a run's greedy top-level skill chain (or phase-2 policy), every level's goal
+    drawn; for a flat skill learner, its greedy skills from the prior one after another."""
     for name in ("steps", "width", "height"):
         if getattr(exp, name) < 1:
             raise ConfigError(f"{name}: must be >= 1; got {getattr(exp, name)}")
-    if not exp.fps > 0:
-        raise ConfigError(f"fps: must be > 0; got {exp.fps}")
-    import jax
+    for name in ("fps", "distance"):
+        if not (math.isfinite(getattr(exp, name)) and getattr(exp, name) > 0):
+            raise ConfigError(f"{name}: must be a finite number > 0; got {getattr(exp, name)}")
+    from mjx_emp.viz.render import check_video, record_rollout, render_frames, skill_recording, write_video
 
-    from mjx_emp.viz.render import record_rollout, render_frames, skill_recording, write_gif
+    out = Path(exp.out or Path(exp.run_dir) / ("phase2.mp4" if exp.phase2 else "skills.mp4"))
+    check_video(out, exp.width, exp.height)  # before the run is loaded
+    import jax
 
     if exp.phase2:
         phase2_dir = Path(exp.run_dir) / store.PHASE2_SUBDIR
@@ -147,109 +163,152 @@ def render(exp: RenderExperiment) -> None:
             raise ConfigError(f"phase2: {str(phase2_dir)!r} holds no phase-2 run; train one with "
                               f"`mjx-emp phase2 {exp.run_dir}`")
         trainer, epoch, state = jobs.load_phase2(phase2_dir)
+        print(f"recording {exp.steps} steps of the phase-2 policy (epoch {epoch}) ...", flush=True)
         recording = record_rollout(trainer.greedy_episodes(state), jax.random.key(exp.seed), exp.steps)
     else:
         trainer, epoch, state = jobs.load_run(Path(exp.run_dir))
+        print(f"recording {exp.steps} steps of the greedy skills (epoch {epoch}) ...", flush=True)
         recording = skill_recording(trainer, state, jax.random.key(exp.seed), exp.steps)
-    frames = render_frames(trainer.env, recording, exp.width, exp.height, exp.distance)
-    default_name = "phase2.gif" if exp.phase2 else "skills.gif"
-    out = write_gif(frames, Path(exp.out or Path(exp.run_dir) / default_name), exp.fps)
+    print(f"rendering {len(recording.qpos)} frames of {exp.width}x{exp.height} ...", flush=True)
+    frames = render_frames(trainer.env, recording, exp.width, exp.height, exp.camera, exp.distance)
+    out = write_video(frames, out, exp.fps)
     print(f"{out}: {len(frames)} frames of {exp.width}x{exp.height} (epoch {epoch})")
 
 
-def evaluate(exp: EvalExperiment) -> dict:
-    """Evaluate each run's newest checkpoints, aggregate over runs, print tables, write JSON.
-
-    Phase-1 figures always; the paper's phase-2 figure (mean minimum distance to goal) for
-    runs that have a phase-2 directory (RUN_DIR/phase2).
-    """
+def check_eval(exp: EvalExperiment) -> None:
+    """Refuse an eval request before anything loads: episodes, and a run given twice (it
+    would count as two seeds)."""
     if exp.episodes < 1:
         raise ConfigError(f"episodes: must be >= 1; got {exp.episodes}")
+    if not exp.run_dirs:
+        raise ConfigError("run_dirs: give at least one run directory, e.g. `mjx-emp eval runs/pm1`")
+    resolved = [Path(d).resolve() for d in exp.run_dirs]
+    twice = sorted({d for d, r in zip(exp.run_dirs, resolved) if resolved.count(r) > 1})
+    if twice:
+        raise ConfigError(f"run_dirs: each run counts once (they are aggregated as seeds); given twice: {twice}")
+
+
+def phase2_report(run_dir: Path, key, episodes: int, phase2_figures) -> dict | None:
+    """RUN_DIR/phase2's figures, None without one; a phase-2 folder that cannot be loaded is
+    reported on stderr and skipped, so it never blocks the phase-1 evaluation."""
+    phase2_dir = Path(run_dir) / store.PHASE2_SUBDIR
+    if not (phase2_dir / store.CONFIG_FILE).exists():
+        return None
+    try:
+        loaded = jobs.load_phase2(phase2_dir)
+    except (ConfigError, CheckpointError) as err:
+        print(f"mjx-emp: {phase2_dir} is unusable, its phase 2 is left out: {err}", file=sys.stderr, flush=True)
+        return None
+    return phase2_figures(*loaded, key, episodes)
+
+
+def evaluate(exp: EvalExperiment) -> dict:
+    """Evaluate each run's newest checkpoint, aggregate over runs (mean, sample std, standard
+    error), print tables and write JSON.
+
+    Goal-space algorithms: the phase-1 figures per level and the agent's coverage; flat skill
+    learners: coverage and posterior std. Both: the paper's phase-2 figure (mean minimum
+    distance to goal) for runs that have a phase-2 directory (RUN_DIR/phase2).
+    """
+    check_eval(exp)
     import jax
 
-    from mjx_emp.metrics import LEVEL_FIGURES, aggregate_agent, aggregate_phase2, aggregate_runs
-    from mjx_emp.run.evaluate import COVERAGE_SKILLS, phase1_figures, phase2_figures, skill_figures
+    from mjx_emp.metrics import aggregate_phase2
+    from mjx_emp.run.evaluate import phase2_figures
 
     algorithms = {algorithm.name: algorithm
                   for algorithm in (algorithm_of(store.read_run_config(Path(d), "run_dirs")) for d in exp.run_dirs)}
     if len(algorithms) > 1:
         raise ConfigError(f"run_dirs: runs of one algorithm at a time (they are aggregated); got {sorted(algorithms)}")
-    if next(iter(algorithms.values())).skills == LATENT_SKILLS:  # no goal spaces to report
-        return evaluate_skills(exp, skill_figures)
+    latent = next(iter(algorithms.values())).skills == LATENT_SKILLS
     runs = []
-    for run_dir in exp.run_dirs:
-        trainer, _, state = jobs.load_run(Path(run_dir))
-        report = {"run_dir": run_dir, **phase1_figures(trainer, state, jax.random.key(exp.seed), exp.episodes)}
-        phase2_dir = Path(run_dir) / store.PHASE2_SUBDIR
-        if (phase2_dir / store.CONFIG_FILE).exists():
-            report["phase2"] = phase2_figures(*jobs.load_phase2(phase2_dir), jax.random.key(exp.seed), exp.episodes)
+    for index, run_dir in enumerate(exp.run_dirs, 1):
+        print(f"evaluating {run_dir} ({index} of {len(exp.run_dirs)}) ...", flush=True)
+        key = jax.random.key(exp.seed)
+        report = {"run_dir": run_dir, **(skill_run_figures if latent else goal_space_run_figures)(run_dir, key, exp)}
+        phase2 = phase2_report(Path(run_dir), key, exp.episodes, phase2_figures)
+        if phase2 is not None:
+            report["phase2"] = phase2
         runs.append(report)
-    report = {"runs": runs, "levels": aggregate_runs(runs), **aggregate_agent(runs)}
+    report = {"runs": runs, **(aggregate_skill_runs if latent else aggregate_goal_space_runs)(runs)}
     with_phase2 = [r["phase2"] for r in runs if "phase2" in r]
     if with_phase2:
         report["phase2"] = aggregate_phase2(with_phase2)
     out = Path(exp.out or Path(exp.run_dirs[0]) / "eval.json")
-    out.write_text(json.dumps(report, indent=1))
-    print(f"{len(runs)} run(s); mean ± standard error over runs")
-    print("| level | goal-space volume | greedy success | final distance | success from s0 | success from "
-          "chained starts | cut short (flipped) |")
-    print("|---|---|---|---|---|---|---|")
-    for row in report["levels"]:
-        cells = [f"{row[name]['mean']:.3g} ± {row[name]['stderr']:.2g}" for name in LEVEL_FIGURES]
-        print(f"| {row['level']} | " + " | ".join(cells) + " |")
-    cover, area = report["coverage_cells"], report["volume_x_success"]
-    print(f"coverage ({COVERAGE_SKILLS} greedy top-level skills from the initial state, 1 m cells of goal space): "
-          f"{cover['mean']:.3g} ± {cover['stderr']:.2g} cells; top volume x greedy success "
-          f"{area['mean']:.3g} ± {area['stderr']:.2g}")
+    store.write_atomically(out, json.dumps(report, indent=1), chosen=bool(exp.out))
+    print(f"{len(runs)} run(s)" + ("" if len(runs) == 1 else "; mean ± sample std (se: standard error) over runs"))
+    (print_skill_report if latent else print_goal_space_report)(report, runs)
     if with_phase2:
-        p2 = report["phase2"]
-        first = with_phase2[0]
+        p2, first = report["phase2"], with_phase2[0]
         print(f"phase 2 ({len(with_phase2)} run(s), {first['episodes']} episodes each, region {first['region']}, "
-              f"eps {first['eps']}): mean min distance to goal {p2['min_distance']['mean']:.3g} ± "
-              f"{p2['min_distance']['stderr']:.2g}, success {p2['success']['mean']:.3g} ± {p2['success']['stderr']:.2g}")
+              f"eps {first['eps']}): mean min distance to goal {spread_text(p2['min_distance'])}, "
+              f"success {spread_text(p2['success'])}")
+        for policy, what in (("aimed", "subgoals aimed straight at each goal"), ("random", "random subgoals")):
+            if policy in p2:  # the chaining diagnostic: the same goals without the learned policy
+                print(f"  the same goals with {what}: mean min distance {spread_text(p2[policy]['min_distance'])}, "
+                      f"success {spread_text(p2[policy]['success'])}")
     else:
         print("phase 2: no run has a phase-2 directory (train one with `mjx-emp phase2 RUN_DIR`)")
     print(f"wrote {out}")
     return report
 
 
-def evaluate_skills(exp: EvalExperiment, skill_figures) -> dict:
-    """``mjx-emp eval`` for flat skill learners: coverage and posterior std per run, and the
-    phase-2 figure where RUN_DIR/phase2 exists, aggregated."""
-    import jax
+def goal_space_run_figures(run_dir: str, key, exp: EvalExperiment) -> dict:
+    """One goal-space run's phase-1 figures (:func:`mjx_emp.run.evaluate.phase1_figures`)."""
+    from mjx_emp.run.evaluate import phase1_figures
 
-    from mjx_emp.metrics import aggregate_phase2, mean_and_stderr
-    from mjx_emp.run.evaluate import COVERAGE_SKILLS, phase2_figures
+    trainer, _, state = jobs.load_run(Path(run_dir))
+    return phase1_figures(trainer, state, key, exp.episodes)
 
-    runs = []
-    for run_dir in exp.run_dirs:
-        agent, _, state = jobs.load_run(Path(run_dir))
-        report = {"run_dir": run_dir, **skill_figures(agent, state, jax.random.key(exp.seed))}
-        phase2_dir = Path(run_dir) / store.PHASE2_SUBDIR
-        if (phase2_dir / store.CONFIG_FILE).exists():
-            report["phase2"] = phase2_figures(*jobs.load_phase2(phase2_dir), jax.random.key(exp.seed), exp.episodes)
-        runs.append(report)
-    report = {"runs": runs, "coverage_cells": mean_and_stderr([r["coverage_cells"] for r in runs])}
-    with_phase2 = [r["phase2"] for r in runs if "phase2" in r]
-    if with_phase2:
-        report["phase2"] = aggregate_phase2(with_phase2)
+
+def skill_run_figures(run_dir: str, key, exp: EvalExperiment) -> dict:
+    """One flat skill learner's figures (:func:`mjx_emp.run.evaluate.skill_figures`)."""
+    from mjx_emp.run.evaluate import skill_figures
+
+    agent, _, state = jobs.load_run(Path(run_dir))
+    return skill_figures(agent, state, key)
+
+
+def aggregate_goal_space_runs(runs: list[dict]) -> dict:
+    """Per-level and agent figures of goal-space runs over runs."""
+    from mjx_emp.metrics import aggregate_agent, aggregate_runs
+
+    return {"levels": aggregate_runs(runs), **aggregate_agent(runs)}
+
+
+def aggregate_skill_runs(runs: list[dict]) -> dict:
+    """Coverage and (where the method has a posterior) its std over flat skill runs."""
+    from mjx_emp.metrics import mean_and_stderr
+
+    report = {"coverage_cells": mean_and_stderr([r["coverage_cells"] for r in runs])}
     stds = [r["posterior_std"] for r in runs if r["posterior_std"] is not None]
     if stds:
         report["posterior_std"] = mean_and_stderr(stds)
-    out = Path(exp.out or Path(exp.run_dirs[0]) / "eval.json")
-    out.write_text(json.dumps(report, indent=1))
-    cover = report["coverage_cells"]
-    print(f"{len(runs)} {runs[0]['algorithm']} run(s); coverage ({COVERAGE_SKILLS} greedy skills from the initial "
-          f"state, 1 m cells of goal space): {cover['mean']:.3g} ± {cover['stderr']:.2g} cells")
-    if stds:
-        print(f"posterior mean std: {report['posterior_std']['mean']:.3g} ± {report['posterior_std']['stderr']:.2g}")
-    if with_phase2:
-        p2 = report["phase2"]
-        print(f"phase 2 ({len(with_phase2)} run(s), {with_phase2[0]['episodes']} episodes each): mean min distance "
-              f"to goal {p2['min_distance']['mean']:.3g} ± {p2['min_distance']['stderr']:.2g}, success "
-              f"{p2['success']['mean']:.3g} ± {p2['success']['stderr']:.2g}")
-    print(f"wrote {out}")
     return report
+
+
+def print_goal_space_report(report: dict, runs: list[dict]) -> None:
+    """The per-level table and the coverage line of goal-space runs."""
+    from mjx_emp.metrics import LEVEL_FIGURES
+    from mjx_emp.run.evaluate import COVERAGE_SKILLS
+
+    print("| level | goal-space volume | greedy success | final distance | success from s0 | success from "
+          "chained starts | cut short (flipped) |")
+    print("|---|---|---|---|---|---|---|")
+    for row in report["levels"]:
+        print(f"| {row['level']} | " + " | ".join(spread_text(row[name]) for name in LEVEL_FIGURES) + " |")
+    print(f"coverage ({COVERAGE_SKILLS} greedy top-level skills from the initial state, 1 m cells of goal space): "
+          f"{spread_text(report['coverage_cells'])} cells; top volume x greedy success {spread_text(report['volume_x_success'])}")
+
+
+def print_skill_report(report: dict, runs: list[dict]) -> None:
+    """The coverage and posterior lines of flat skill runs."""
+    from mjx_emp.run.evaluate import COVERAGE_SKILLS
+
+    print(f"{runs[0]['algorithm']}: coverage ({COVERAGE_SKILLS} greedy skills from the initial state, 1 m cells "
+          f"of goal space): {spread_text(report['coverage_cells'])} cells")
+    if "posterior_std" in report:
+        print(f"posterior mean std: {spread_text(report['posterior_std'])}")
 
 
 def with_phase2_preset(args: list[str]) -> list[str]:
@@ -344,8 +403,8 @@ COMMANDS: dict[str, tuple[Any, Any, str]] = {
     "presets": (lambda: PresetsExperiment, list_presets, "List every phase-1 and phase-2 preset."),
     "eval": (lambda: EvalExperiment, evaluate, "Figures of runs' newest checkpoints (goal spaces, success, "
              "coverage; phase 2's distance), mean over runs."),
-    "plot": (lambda: PlotExperiment, plot, "Draw a run's pictures into RUN_DIR/plots/."),
-    "render": (lambda: RenderExperiment, render, "Film a run's greedy skills (or its phase-2 policy)."),
+    "plot": (lambda: PlotExperiment, plot, "Draw a run's pictures into RUN_DIR/plots/, or compare several runs (seeds, methods)."),
+    "render": (lambda: RenderExperiment, render, "Film a run's greedy skills (or its phase-2 policy) as an MP4 or a GIF."),
     "rollout": (lambda: RolloutExperiment, rollout, "Roll out a random-init k-level agent and print throughput."),
 }
 """Every command: (its type, built on demand; what runs it; its one-line help)."""
@@ -386,7 +445,8 @@ def use_compile_cache(argv: list[str]) -> list[str]:
 
 def main_guarded(command: Callable, exp) -> None:
     """Run a CLI command; bad input exits 2, divergence, a failed checkpoint write or running out of
-    memory 1, no offscreen GL 3, SIGINT/SIGTERM 130/143, each with a reason."""
+    memory 1, a failed file write 1 (2 for a path the user chose), no offscreen GL 3,
+    SIGINT/SIGTERM 130/143, each with a reason."""
     failures = (
         (ConfigError, "invalid configuration", 2),
         (CheckpointError, "unusable checkpoint", 2),
@@ -399,6 +459,9 @@ def main_guarded(command: Callable, exp) -> None:
     except Interrupted as stop:
         print(f"mjx-emp: {stop}", file=sys.stderr)
         sys.exit(128 + stop.signum)
+    except WriteError as err:
+        print(f"mjx-emp: write failed: {err}", file=sys.stderr)
+        sys.exit(err.exit_code)
     except tuple(kind for kind, _, _ in failures) as err:
         what, code = next((what, code) for kind, what, code in failures if isinstance(err, kind))
         print(f"mjx-emp: {what}: {err}", file=sys.stderr)
@@ -419,12 +482,12 @@ def main(argv: list[str] | None = None) -> None:
     (any command) compiles afresh. Bad input exits 2 naming the field (:func:`main_guarded`).
     """
     argv = use_compile_cache(sys.argv[1:] if argv is None else list(argv))
-    if argv[:1] == ["render"]:
-        from mjx_emp.viz.render import configure_headless_gl
-
-        configure_headless_gl()  # before anything imports mujoco
 
     def parse_and_run(args: list[str]) -> None:
+        if args[:1] == ["render"]:
+            from mjx_emp.viz.render import configure_headless_gl
+
+            configure_headless_gl()  # before anything imports mujoco
         command, exp = parse(canonical_args(args))
         command(exp)
 

@@ -12,10 +12,31 @@ from typing import Annotated, Generic, Literal, TypeVar
 
 import tyro
 
+from mjx_emp.algos.registry import algorithm_of
 from mjx_emp.envs.registry import DOMAIN_NAMES
-from mjx_emp.phase2.config import Phase2Config
+from mjx_emp.errors import ConfigError
+from mjx_emp.phase2.config import Phase2Config, check_phase2_config
 
 ConfigT = TypeVar("ConfigT")
+
+
+@dataclasses.dataclass(frozen=True)
+class Tracking:
+    """Where else the metrics go, beside metrics.jsonl (:mod:`mjx_emp.run.tracking`; needs
+    ``pip install "mjx-emp[tracking]"``)."""
+
+    tensorboard: bool = False
+    """Also write TensorBoard event files to RUN_DIR/tensorboard (x axis: env steps)."""
+    wandb: bool = False
+    """Also log to a Weights & Biases run (offline into RUN_DIR/wandb unless WANDB_API_KEY is set)."""
+    wandb_project: str = "mjx-emp"
+    """W&B project."""
+    wandb_group: str = ""
+    """W&B group, e.g. one per preset to compare seeds; empty: none."""
+    wandb_name: str = ""
+    """W&B run name; empty: the run directory's name."""
+    wandb_mode: Literal["auto", "online", "offline"] = "auto"
+    """auto: online with WANDB_API_KEY set, offline otherwise."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -46,6 +67,8 @@ class TrainExperiment(Generic[ConfigT]):
     """Train these seeds of the config together, as one vmapped program (the config's own seed
     is then unused); each seed gets its own run directory RUN_DIR-s<seed>, resumable and
     evaluable on its own. Empty: one run of the config's seed."""
+    tracking: Annotated[Tracking, tyro.conf.OmitArgPrefixes] = Tracking()
+    """TensorBoard and W&B beside metrics.jsonl."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -63,6 +86,8 @@ class ResumeExperiment:
     num_devices: int = 0
     """Local devices a run split into shards trains on (any count that divides its shards;
     0: as many as divide them)."""
+    tracking: Annotated[Tracking, tyro.conf.OmitArgPrefixes] = Tracking()
+    """TensorBoard and W&B beside metrics.jsonl."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -88,6 +113,8 @@ class Phase2Experiment:
     """Phase-2 directory; empty means RUN_DIR/phase2. Must not hold a phase-2 run already."""
     keep_checkpoints: int = 3
     """How many of the newest epoch checkpoints to keep."""
+    tracking: Annotated[Tracking, tyro.conf.OmitArgPrefixes] = Tracking()
+    """TensorBoard and W&B beside metrics.jsonl."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -110,36 +137,43 @@ class EvalExperiment:
 
 @dataclasses.dataclass(frozen=True)
 class PlotExperiment:
-    """Draw RUN_DIR/plots/: goal_space_growth.png from metrics.jsonl and, from the checkpoints,
-    goal_spaces_epoch0.png and goal_spaces.png (boxes per level with greedy skill chains)."""
+    """Draw a run's pictures into RUN_DIR/plots/ (goal-space growth or skill learning curves, the
+    skills at epoch 0 and now on shared axes, phase 2's curves); or, given several runs (seeds,
+    methods), compare them: each method's mean over seeds with a one-std band against env steps."""
 
-    run_dir: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="RUN_DIR")]
-    """Run directory written by `mjx-emp train`."""
+    run_dirs: Annotated[tuple[str, ...], tyro.conf.Positional, tyro.conf.arg(metavar="RUN_DIR")]
+    """Run directories written by `mjx-emp train`: one for its pictures, several to compare."""
+    out: str = ""
+    """Folder of the comparison charts (several runs); empty means ./plots."""
 
 
 @dataclasses.dataclass(frozen=True)
 class RenderExperiment:
-    """Render the greedy chain of top-level skills from RUN_DIR's newest checkpoint as a GIF
-    (or, with --phase2, the phase-2 policy reaching goals from its region)."""
+    """Film the greedy chain of top-level skills from RUN_DIR's newest checkpoint (or, with
+    --phase2, the phase-2 policy reaching goals from its region) as an MP4 or a GIF: every
+    level's subgoal in its own colour, a fading trail of h(s), the top goal-space box on the floor."""
 
     run_dir: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="RUN_DIR")]
     """Run directory written by `mjx-emp train`."""
     steps: int = 200
     """Primitive steps (frames) to record."""
-    width: int = 320
-    """Frame width in pixels."""
-    height: int = 240
-    """Frame height in pixels."""
+    width: int = 640
+    """Frame width in pixels (even, for an MP4)."""
+    height: int = 480
+    """Frame height in pixels (even, for an MP4)."""
     fps: float = 10.0
-    """Frames per second of the GIF (one frame is one control step)."""
+    """Frames per second of the video (one frame is one control step)."""
+    camera: Literal["fixed", "follow"] = "fixed"
+    """fixed: one view that holds every position, goal and the top box of the recording;
+    follow: track the torso from --distance."""
     distance: float = 6.0
-    """Camera distance from the torso."""
+    """Camera distance from the torso with --camera follow."""
     seed: int = 0
     """Seed of the skills drawn from the top goal space (or of the phase-2 goals)."""
     phase2: bool = False
     """Film the phase-2 policy of RUN_DIR/phase2 instead of the skill chain."""
     out: str = ""
-    """Output GIF; empty means RUN_DIR/skills.gif (RUN_DIR/phase2.gif with --phase2)."""
+    """Output video, .mp4 or .gif; empty means RUN_DIR/skills.mp4 (RUN_DIR/phase2.mp4 with --phase2)."""
 
 
 EnvName = Literal[DOMAIN_NAMES]
@@ -168,3 +202,48 @@ class RolloutExperiment:
     hidden: tuple[int, ...] = (256, 256)
     """Hidden layer widths of every policy MLP."""
     seed: int = 0
+
+
+def _check_keep(keep_checkpoints: int) -> None:
+    if keep_checkpoints < 1:
+        raise ConfigError(f"keep_checkpoints: must be >= 1; got {keep_checkpoints}")
+
+
+def _check_devices(num_devices: int) -> None:
+    if num_devices < 0:
+        raise ConfigError(f"num_devices: must be >= 0 (0: every local device); got {num_devices}")
+
+
+def check_train(exp: TrainExperiment) -> None:
+    """Refuse a training request before anything is built or written: its config (by the
+    algorithm's registry entry), ``keep_checkpoints``, ``num_devices`` and ``seeds``."""
+    algorithm_of(exp.config).check(exp.config)
+    _check_keep(exp.keep_checkpoints)
+    _check_devices(exp.num_devices)
+    if not exp.seeds:
+        return
+    if len(set(exp.seeds)) != len(exp.seeds) or any(seed < 0 for seed in exp.seeds):
+        raise ConfigError(f"seeds: must be distinct integers >= 0; got {list(exp.seeds)}")
+    if exp.config.shards > 1 or exp.num_devices > 1:
+        raise ConfigError(f"seeds: a seed group trains on one device, unsplit; got shards={exp.config.shards}, "
+                          f"num_devices={exp.num_devices}")
+    if exp.tracking.tensorboard or exp.tracking.wandb:
+        raise ConfigError("seeds: tracking follows one run; train the seeds one by one with --tensorboard or --wandb")
+
+
+def check_resume(exp: ResumeExperiment) -> None:
+    """Refuse a resume request's own fields before the run is opened (what depends on the run,
+    such as an ``epochs`` below its newest checkpoint, is checked once it is read)."""
+    _check_keep(exp.keep_checkpoints)
+    _check_devices(exp.num_devices)
+    if exp.epochs is not None and exp.epochs < 1:
+        raise ConfigError(f"epochs: must be >= 1; got {exp.epochs}")
+
+
+def check_phase2(exp: Phase2Experiment) -> None:
+    """Refuse a phase-2 request before the phase-1 run is read: its config, ``keep_checkpoints``
+    and a missing ``run_dir``."""
+    check_phase2_config(exp.config)
+    _check_keep(exp.keep_checkpoints)
+    if not exp.run_dir:
+        raise ConfigError("run_dir: give the phase-1 run directory, e.g. `mjx-emp phase2 runs/pm1`")

@@ -1,8 +1,9 @@
 """Every error type the library raises on purpose, each with a message a user can act on.
 
 The CLI maps them to exit codes (cli.main_guarded): bad input and unusable
-checkpoints exit 2, a diverged run or a failed checkpoint write 1, no offscreen GL 3, a run stopped by SIGINT or SIGTERM
-128 + the signal's number (130, 143).
+checkpoints exit 2, a diverged run or a failed checkpoint write 1, a failed file write 1 (2 for a
+path the user chose), no offscreen GL 3, a run stopped by SIGINT or SIGTERM 128 + the signal's
+number (130, 143).
 """
 
 
@@ -17,6 +18,16 @@ class CheckpointError(RuntimeError):
 class CheckpointWriteError(RuntimeError):
     """A checkpoint could not be written (a full disk, a lost mount); the previous checkpoint is
     intact and the message names it."""
+
+
+class WriteError(RuntimeError):
+    """A file could not be written (a full disk, no permission, a read-only filesystem); the
+    message names the file, the reason and the run's newest intact checkpoint. ``exit_code`` is 2
+    where the user chose the path (``--out``), 1 otherwise."""
+
+    def __init__(self, message: str, exit_code: int = 1):
+        super().__init__(message)
+        self.exit_code = exit_code
 
 
 class TrainingDiverged(RuntimeError):

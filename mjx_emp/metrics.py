@@ -97,11 +97,19 @@ def aggregate_agent(reports: Sequence[dict]) -> dict:
     return {name: mean_and_stderr([r[name] for r in reports]) for name in ("coverage_cells", "volume_x_success")}
 
 
+PHASE2_DIAGNOSTICS = ("aimed", "random")
+"""Phase-2 policies evaluated beside the learned one on the same goals (``Phase2Trainer.top``)."""
+
+
 def aggregate_phase2(reports: Sequence[dict]) -> dict:
     """Mean and standard error over runs (seeds) of phase 2's mean minimum distance and success."""
     if not reports:
         raise ValueError("aggregate_phase2 needs at least one report")
-    return {name: mean_and_stderr([r[name] for r in reports]) for name in ("min_distance", "success")}
+    figures = {name: mean_and_stderr([r[name] for r in reports]) for name in ("min_distance", "success")}
+    for policy in PHASE2_DIAGNOSTICS:  # the chaining diagnostic's policies, where every run has them
+        if all(policy in r for r in reports):
+            figures[policy] = aggregate_phase2([r[policy] for r in reports])
+    return figures
 
 
 def epoch_header(state: Any, epoch_env_steps: float, seconds: float) -> dict[str, Any]:

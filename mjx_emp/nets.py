@@ -98,6 +98,29 @@ def level_policy(env: Env, actor: MLP, box_fn: BoxFn) -> LevelPolicy:
     return policy
 
 
+def aimed_policy(env: Env, box_fn: BoxFn) -> LevelPolicy:
+    """A scripted policy that aims every subgoal straight at its goal: clip(goal - h(s), the box
+    at s). Put on top of frozen skills, it bounds what they can do on a goal-reaching task
+    without any learning above them (the chaining diagnostic)."""
+
+    def policy(params: LevelParams, obs: jax.Array, goal: jax.Array, key: jax.Array) -> jax.Array:
+        del key
+        shift, half_width = box_fn(params.box, obs)
+        return jnp.clip(env.goal_offset(obs, goal), shift - half_width, shift + half_width)
+
+    return policy
+
+
+def random_policy(box_fn: BoxFn) -> LevelPolicy:
+    """Subgoals uniform in the box at s, whatever the goal: what chance alone reaches."""
+
+    def policy(params: LevelParams, obs: jax.Array, goal: jax.Array, key: jax.Array) -> jax.Array:
+        shift, half_width = box_fn(params.box, obs)
+        return shift + half_width * jax.random.uniform(key, jnp.shape(goal), minval=-1.0, maxval=1.0)
+
+    return policy
+
+
 def greedy_batch(policy: LevelPolicy, actor: Params, box: Any) -> Callable[[jax.Array, jax.Array], jax.Array]:
     """``policy`` without exploration noise over a batch of (obs, goal), in the action box ``box``."""
     params = LevelParams(actor=actor, box=box, noise=jnp.zeros(()))

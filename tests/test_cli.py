@@ -131,7 +131,7 @@ def test_help_explains_fields():
 
 
 def test_train_refuses_a_run_dir_that_holds_a_run(tmp_path):
-    (tmp_path / "metrics.jsonl").write_text("")
+    (tmp_path / "metrics.jsonl").write_text('{"epoch": 1}\n')
     result = cli("train", "point-mass-k1", "--run-dir", str(tmp_path))
     assert result.returncode == 2
     assert f"run_dir: '{tmp_path}' already holds a run; continue it with `mjx-emp train --resume {tmp_path}`" in result.stderr

@@ -12,13 +12,13 @@ import textwrap
 
 import jax
 import numpy as np
-from tiny import TINY, mjx_emp
+from tiny import TINY1, mjx_emp
 
 from mjx_emp.errors import ConfigError
 from mjx_emp.run.devices import ShardedAgent, shard_slice
 
-# TINY split in two: 4 environments, minibatches of 8 and half of every buffer per shard.
-SPLIT = dataclasses.replace(TINY, shards=2)
+# TINY1 split in two: 4 environments, minibatches of 8 and half of every buffer per shard.
+SPLIT = dataclasses.replace(TINY1, shards=2)
 
 
 def test_shards_keep_equal_networks_explore_apart_and_count_the_whole_run():
@@ -31,16 +31,16 @@ def test_shards_keep_equal_networks_explore_apart_and_count_the_whole_run():
     assert not np.array_equal(jax.random.key_data(first.key), jax.random.key_data(second.key))
     assert not np.array_equal(first.starts[0].data, second.starts[0].data)  # each shard its own start states
     # every shard holds the whole run's step count, which is what the unsplit run counts
-    unsplit_state, _ = program.alone.__class__(TINY).train_epoch(program.alone.__class__(TINY).init())
+    unsplit_state, _ = program.alone.__class__(TINY1).train_epoch(program.alone.__class__(TINY1).init())
     assert int(first.env_steps.value()) == int(second.env_steps.value())
-    assert program.alone.cfg.num_envs == TINY.num_envs // 2 and program.alone.cfg.shards == 1
+    assert program.alone.cfg.num_envs == TINY1.num_envs // 2 and program.alone.cfg.shards == 1
     assert 0 < int(first.env_steps.value()) <= 2 * int(unsplit_state.env_steps.value())
     assert program.divergence(state, stats) is None
 
 
 def test_a_split_the_batch_cannot_take_is_refused_naming_the_field():
     try:
-        ShardedAgent(dataclasses.replace(TINY, shards=3), 1)
+        ShardedAgent(dataclasses.replace(TINY1, shards=3), 1)
     except ConfigError as err:
         assert "num_envs: must be a multiple of shards (3); got 8" in str(err)
     else:
@@ -51,9 +51,9 @@ FORCED_DEVICES = textwrap.dedent("""
     import dataclasses, json, sys
     import jax, numpy as np
     sys.path.insert(0, "tests")
-    from tiny import TINY
+    from tiny import TINY1
     from mjx_emp.run.devices import ShardedAgent
-    cfg = dataclasses.replace(TINY, shards=4)
+    cfg = dataclasses.replace(TINY1, shards=4)
     results = {}
     for devices in (1, 4):
         program = ShardedAgent(cfg, devices)

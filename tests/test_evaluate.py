@@ -9,7 +9,14 @@ import pytest
 
 from mjx_emp import cli
 from mjx_emp.metrics import aggregate_phase2, aggregate_runs, coverage_cells, mean_and_stderr, running_min_distance
-from mjx_emp.viz.plots import plot_goal_space_boxes, plot_goal_space_growth, plot_phase2_curves
+from mjx_emp.viz.plots import (
+    METHOD_COLOURS,
+    plot_goal_space_boxes,
+    plot_goal_space_growth,
+    plot_phase2_curves,
+    plot_runs,
+    seed_band,
+)
 
 
 def _distances(positions, goals):
@@ -149,3 +156,36 @@ def test_plot_command_draws_a_run_and_names_the_field_when_there_is_none(tmp_pat
     with pytest.raises(SystemExit) as exit_info:
         cli.main(["plot", str(tmp_path / "missing")])
     assert exit_info.value.code == 2 and "run_dir" in capsys.readouterr().err
+
+
+def test_seeds_meet_on_the_grid_of_the_run_that_ends_first():
+    first = (np.array([0.0, 10.0, 20.0]), np.array([1.0, 3.0, 5.0]))
+    second = (np.array([0.0, 5.0, 10.0, 15.0]), np.array([3.0, np.nan, 5.0, 9.0]))  # a NaN is skipped
+    band = seed_band([first, second])
+    assert band["steps"].tolist() == [0.0, 5.0, 10.0, 15.0] and band["count"] == 2
+    assert band["mean"].tolist() == pytest.approx([2.0, 3.0, 4.0, 6.5])  # first at 5 and 15: 2.0 and 4.0
+    assert band["std"][0] == pytest.approx(np.std([1.0, 3.0], ddof=1))
+
+
+def test_two_seeds_of_two_methods_plot_as_bands_in_fixed_colours(tmp_path):
+    from mjx_emp.algos.he.config import HEConfig
+    from mjx_emp.run.store import write_config
+
+    runs = []
+    for k, offset in ((1, 0.0), (2, 5.0)):
+        for seed in (0, 1):
+            run_dir = tmp_path / f"k{k}-s{seed}"
+            run_dir.mkdir()
+            n, eps = (10,) * k, (0.6,) * k
+            write_config(run_dir, HEConfig(n=n, eps=eps, sigma_gc=eps, sigma_gs=eps, init_half_width=eps,
+                                           max_half_width=(3.0,) * k, seed=seed))
+            lines = [{"epoch": e, "env_steps": 1000.0 * e, "levels": [
+                {"volume": offset + e + seed, "success": 0.5 + 0.01 * e}] * k} for e in range(1, 11)]
+            (run_dir / "metrics.jsonl").write_text("".join(json.dumps(m) + "\n" for m in lines))
+            runs.append(run_dir)
+    paths = plot_runs(runs, tmp_path / "figures")
+    assert [p.name for p in paths] == ["learning_curves.png"]
+    pixels = drawn_png(paths[0])
+    for label in ("HE k=1", "HE k=2"):
+        colour = np.array([int(METHOD_COLOURS[label][i:i + 2], 16) for i in (1, 3, 5)])
+        assert (np.abs(pixels.astype(int) - colour).sum(axis=-1) < 30).sum() > 200, label

@@ -189,3 +189,25 @@ def test_phase_2_critic_learns_its_own_reward_sigma_and_discount(tiny_phase2, re
         wrong.append(expected(cfg.sigma, TINY.gamma))  # phase 1's discount
     for value in wrong:
         assert abs(value - actual) > 1e-3 * abs(actual), (value, actual)
+
+
+def test_the_aimed_policy_asks_for_the_goal_itself_inside_the_top_box_and_its_edge_outside(tiny_phase2):
+    trainer, skills_state, state = tiny_phase2
+    aimed = dataclasses.replace(trainer, top="aimed")
+    assert aimed != trainer and aimed.identity == trainer.identity  # its own compiled programs
+    policy = aimed.hierarchy.policies[aimed.level]
+    box = state.goal_space_actors[aimed.level - 1]
+    params = LevelParams(actor=None, box=box, noise=jnp.zeros(()))
+    obs = jnp.asarray(aimed.phase1.initial_obs)
+    shift, half_width = aimed.phase1.nets.learned_box(aimed.level - 1)(box, obs)
+    here = aimed.env.goal_of_obs(obs)
+    inside = here + shift + 0.5 * half_width
+    np.testing.assert_allclose(policy(params, obs, inside, jax.random.key(0)), inside - here, rtol=1e-5, atol=1e-6)
+    far = here + shift + 10.0 * half_width  # out of reach: the box's corner towards it
+    np.testing.assert_allclose(policy(params, obs, far, jax.random.key(0)), shift + half_width, rtol=1e-5, atol=1e-6)
+    randomly = dataclasses.replace(trainer, top="random").hierarchy.policies[aimed.level]
+    draws = jax.vmap(lambda k: randomly(params, obs, far, k))(jax.random.split(jax.random.key(1), 256))
+    assert bool(jnp.all(jnp.abs(draws - shift) <= half_width + 1e-6))  # uniform in the box, whatever the goal
+    assert float(jnp.std(draws)) > 0.2 * float(jnp.min(half_width))
+    with pytest.raises(ConfigError, match="top: 'greedy' is unknown"):
+        dataclasses.replace(trainer, top="greedy")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 
 import jax
 import numpy as np
@@ -36,20 +37,65 @@ def trained_run(tmp_path_factory):
     return run_dir
 
 
-def test_render_writes_frames_of_the_requested_size(trained_run, tmp_path):
-    run_dir = trained_run
-    out = tmp_path / "skills.gif"
-    result = run_cli("render", str(run_dir), "--steps", "6", "--width", "64", "--height", "48", "--out", str(out))
+def marker_frames(frames: list[np.ndarray], colour: tuple[float, ...], hue_window: float = 12.0) -> int:
+    """How many frames hold at least 3 pixels of ``colour``'s hue (within ``hue_window`` degrees),
+    saturated and lit as a marker is: shading changes a sphere's brightness, not its hue."""
+    import colorsys
+
+    import matplotlib.colors
+
+    hue = 360 * colorsys.rgb_to_hsv(*colour[:3])[0]
+    count = 0
+    for frame in frames:
+        hsv = matplotlib.colors.rgb_to_hsv(frame / 255.0)
+        apart = np.abs((360 * hsv[..., 0] - hue + 180) % 360 - 180)
+        count += int(((apart <= hue_window) & (hsv[..., 1] > 0.5) & (hsv[..., 2] > 0.35)).sum() >= 3)
+    return count
+
+
+def rendered(run_dir, out, *args) -> None:
+    result = run_cli("render", str(run_dir), "--steps", "12", "--width", "320", "--height", "240", "--out", str(out),
+                     *args)
     if result.returncode == 3:  # the CLI's exit code for "no offscreen OpenGL on this machine"
         pytest.skip(result.stderr.strip())
     assert result.returncode == 0, result.stderr
+
+
+def test_the_mp4_keeps_the_goal_colour_in_every_frame(trained_run, tmp_path):
+    import imageio_ffmpeg
+
+    from mjx_emp.viz.render import LEVEL_COLOURS
+
+    out = tmp_path / "skills.mp4"
+    rendered(trained_run, out)
+    reader = imageio_ffmpeg.read_frames(str(out))
+    meta = next(reader)
+    assert tuple(meta["size"]) == (320, 240)
+    frames = [np.frombuffer(raw, np.uint8).reshape(240, 320, 3) for raw in reader]
+    assert len(frames) == 12
+    assert marker_frames(frames, LEVEL_COLOURS[0]) == 12  # the goal, in its own colour, after compression
+
+
+def test_the_gif_shares_one_palette_that_keeps_the_goal_colour(trained_run, tmp_path):
+    from mjx_emp.viz.render import LEVEL_COLOURS
+
+    out = tmp_path / "skills.gif"
+    rendered(trained_run, out)
     with Image.open(out) as gif:
-        assert gif.n_frames == 6 and gif.size == (64, 48)
+        assert gif.size == (320, 240)
         frames = []
-        for index in range(gif.n_frames):
+        for index in range(gif.n_frames):  # identical neighbours are merged into one longer frame
             gif.seek(index)
             frames.append(np.asarray(gif.convert("RGB")))
     assert all(frame.std() > 0 for frame in frames)  # a scene was drawn, not a blank image
+    assert marker_frames(frames, LEVEL_COLOURS[0]) == len(frames)  # the goal's colour in every frame
+
+
+def test_a_video_that_cannot_be_written_is_refused_before_the_run_loads(trained_run, tmp_path):
+    odd = run_cli("render", str(trained_run), "--width", "161", "--out", str(tmp_path / "v.mp4"))
+    assert odd.returncode == 2 and "width and height: an MP4 needs even sizes; got 161x480" in odd.stderr
+    other = run_cli("render", str(trained_run), "--out", str(tmp_path / "v.avi"))
+    assert other.returncode == 2 and "out: a video file ends in one of ['.mp4', '.gif']; got 'v.avi'" in other.stderr
 
 
 # A phase-2 config small enough for a test (the point-mass-k1 preset otherwise).
@@ -87,14 +133,14 @@ def test_phase2_trains_on_the_runs_skills_and_resumes_exactly(trained_run, phase
 
 
 def test_render_films_the_phase2_policy_with_its_goal(trained_run, phase2_run, tmp_path):
-    out = tmp_path / "phase2.gif"
-    result = run_cli("render", str(trained_run), "--phase2", "--steps", "4", "--width", "32", "--height", "24",
-                     "--out", str(out))
+    import imageio_ffmpeg
+
+    result = run_cli("render", str(trained_run), "--phase2", "--steps", "4", "--width", "64", "--height", "48")
     if result.returncode == 3:  # no offscreen OpenGL on this machine
         pytest.skip(result.stderr.strip())
     assert result.returncode == 0, result.stderr
-    with Image.open(out) as gif:
-        assert gif.n_frames == 4 and gif.size == (32, 24)
+    reader = imageio_ffmpeg.read_frames(str(trained_run / "phase2.mp4"))  # the default name beside the run
+    assert tuple(next(reader)["size"]) == (64, 48) and len(list(reader)) == 4
 
 
 @pytest.mark.parametrize("args, message", [
@@ -109,8 +155,8 @@ def test_phase2_bad_input_exits_2_naming_the_field(trained_run, tmp_path, args, 
 def test_plot_draws_growth_the_goal_space_boxes_and_phase2_curves(trained_run, phase2_run):
     result = run_cli("plot", str(trained_run))
     assert result.returncode == 0, result.stderr
-    names = ["goal_space_growth.png", "phase2_curves.png", "goal_spaces_epoch0.png", "goal_spaces.png"]
-    assert [line.rsplit("/", 1)[-1] for line in result.stdout.split()] == names
+    names = ["goal_space_growth.png", "phase2_curves.png", "goal_spaces.png"]
+    assert [line.rsplit("/", 1)[-1] for line in result.stdout.splitlines()[1:]] == names
     for name in names:
         with Image.open(trained_run / "plots" / name) as image:
             assert image.format == "PNG" and np.asarray(image.convert("L")).std() > 0
@@ -118,12 +164,14 @@ def test_plot_draws_growth_the_goal_space_boxes_and_phase2_curves(trained_run, p
 
 def test_eval_reports_every_level_and_phase2_and_aggregates_runs_as_seeds(trained_run, phase2_run, tmp_path):
     out = tmp_path / "eval.json"
-    result = run_cli("eval", str(trained_run), str(trained_run), "--episodes", "16", "--out", str(out))
+    copy = tmp_path / "copy"  # a second seed that is the same run: the spread over the two is 0
+    shutil.copytree(trained_run, copy, ignore=shutil.ignore_patterns(".lock"))
+    result = run_cli("eval", str(trained_run), str(copy), "--episodes", "16", "--out", str(out))
     assert result.returncode == 0, result.stderr
     report = json.loads(out.read_text())
     assert len(report["runs"]) == 2 and report["runs"][0]["epoch"] == 1
     (level,) = report["levels"]  # SMALL is a one-level agent
-    assert level["volume"]["count"] == 2 and level["volume"]["stderr"] == 0.0  # same run twice
+    assert level["volume"]["count"] == 2 and level["volume"]["stderr"] == 0.0  # the same run copied
     assert 0.0 <= level["success"]["mean"] <= 1.0 and level["final_distance"]["mean"] >= 0.0
     assert report["runs"][0]["levels"][0]["episodes"] == 16
     assert "| 0 |" in result.stdout
@@ -135,3 +183,9 @@ def test_eval_reports_every_level_and_phase2_and_aggregates_runs_as_seeds(traine
     assert phase2["episodes"] == 16 and phase2["eps"] == 0.6 and phase2["min_distance"] >= 0.0
     assert report["phase2"]["min_distance"]["count"] == 2 and report["phase2"]["min_distance"]["stderr"] == 0.0
     assert "mean min distance to goal" in result.stdout
+    for policy in ("aimed", "random"):  # the chaining diagnostic on the same goals
+        assert 0.0 <= phase2[policy]["min_distance"] and phase2[policy]["episodes"] == 16
+        assert report["phase2"][policy]["min_distance"]["count"] == 2
+    assert "the same goals with subgoals aimed straight at each goal" in result.stdout
+
+    assert "2 run(s); mean ± sample std (se: standard error) over runs" in result.stdout

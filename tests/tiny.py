@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import subprocess
 import sys
@@ -20,6 +21,12 @@ TINY = HEConfig(
     gc_iterations=2, gc_grad_steps=3, gs_grad_steps=2, batch_size=16, replay_capacity=512,
     gs_replay_capacity=64, start_capacity=64, start_chain=2, hidden=(16,), seed=3,
 )
+
+TINY1 = dataclasses.replace(
+    TINY, n=(3,), sigma_gc=(0.4,), sigma_gs=(0.4,), eps=(0.3,), init_half_width=(0.3,), max_half_width=(3.0,),
+)
+"""TINY with one level: what tests of the run layer (devices, seeds, damage, tracking) train,
+where a second level would only cost compile time."""
 
 TINY_PHASE2 = Phase2Config(
     n=3, eps=0.6, sigma=0.6, region=(2.0, 2.0), region_offset=(0.0, 0.0), num_envs=8, iterations=2,

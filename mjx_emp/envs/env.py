@@ -330,16 +330,34 @@ _INTEGRATOR_ENUMS = {"model": None, "euler": mujoco.mjtIntegrator.mjINT_EULER,
                      "implicitfast": mujoco.mjtIntegrator.mjINT_IMPLICITFAST, "rk4": mujoco.mjtIntegrator.mjINT_RK4}
 
 
+def check_backend(impl: str) -> None:
+    """MJX's Warp backend needs the mujoco-warp package and a CUDA device: refuse it, naming the
+    field, where either is missing (the jax backend runs anywhere)."""
+    if impl != "warp":
+        return
+    import importlib.util
+
+    if importlib.util.find_spec("mujoco_warp") is None:
+        raise ConfigError("impl: warp needs the mujoco-warp package (pip install \"mujoco-mjx[warp]\"); "
+                          "allowed here: jax")
+    if jax.default_backend() != "gpu":
+        raise ConfigError(f"impl: warp runs on CUDA GPUs only; this process's devices are "
+                          f"{jax.default_backend()}; allowed here: jax")
+
+
 @functools.cache
-def make_env(name: str, heading_frame: bool = False, solver_iterations: int = 0, integrator: str = "model") -> Env:
+def make_env(name: str, heading_frame: bool = False, solver_iterations: int = 0, integrator: str = "model",
+             impl: str = "jax") -> Env:
     """Build a domain by name (see :data:`DOMAINS`); cached so every caller shares one Env.
 
     ``heading_frame`` (robots with a free torso only) shows networks the state and goal
     in the torso's heading frame (:attr:`Env.heading_frame`). ``solver_iterations`` (0:
     the model's) and ``integrator`` (one of ``registry.INTEGRATORS``) replace the MJCF's
     solver settings: the robots' files keep the paper's cheap ones (1 iteration, Euler).
+    ``impl`` picks MJX's backend (:func:`check_backend`).
     """
-    check_physics(solver_iterations, integrator)
+    check_physics(solver_iterations, integrator, impl)
+    check_backend(impl)
     if name not in DOMAINS:
         raise ConfigError(f"env name {name!r} is unknown; allowed values: {sorted(DOMAINS)}")
     spec = DOMAINS[name]
@@ -355,8 +373,8 @@ def make_env(name: str, heading_frame: bool = False, solver_iterations: int = 0,
     d.qpos[:] = _home_qpos(m)
     mujoco.mj_forward(m, d)
     device = jax.local_devices()[0]  # this process's (MJX's default is the first device of all processes)
-    model = mjx.put_model(m, device=device, impl="jax")
-    template = mjx.put_data(m, d, device=device, impl="jax")
+    model = mjx.put_model(m, device=device, impl=impl)
+    template = mjx.put_data(m, d, device=device, impl=impl)
     env = Env(
         name=name,
         mj_model=m,

@@ -53,8 +53,14 @@ INTEGRATORS = ("model", "euler", "implicitfast", "rk4")
 """Integrators a config may ask for; "model" keeps the MJCF file's (Euler in every domain)."""
 
 
-def check_physics(solver_iterations: int, integrator: str) -> None:
+IMPLS = ("jax", "warp")
+"""MJX backends: jax (MJX's XLA implementation, any device) and warp (MuJoCo Warp, CUDA only)."""
+
+
+def check_physics(solver_iterations: int, integrator: str, impl: str = "jax") -> None:
     """Raise ConfigError naming the field if the physics overrides are not allowed values."""
+    if impl not in IMPLS:
+        raise ConfigError(f"impl: {impl!r} is unknown; allowed values: {list(IMPLS)}")
     if integrator not in INTEGRATORS:
         raise ConfigError(f"integrator: {integrator!r} is unknown; allowed values: {list(INTEGRATORS)}")
     if solver_iterations < 0:

@@ -53,6 +53,22 @@ def squashed_sample(mean: jax.Array, log_std: jax.Array, key: jax.Array) -> tupl
 
 
 @struct.dataclass
+class SACInfo:
+    """What one SAC step reports: its three losses, the temperature and the policy's entropy."""
+
+    critic_loss: jax.Array
+    actor_loss: jax.Array
+    alpha_loss: jax.Array
+    alpha: jax.Array
+    entropy: jax.Array
+
+    @classmethod
+    def nan(cls) -> SACInfo:
+        """The report of an iteration that took no step (every field NaN)."""
+        return cls(*(jnp.float32(jnp.nan) for _ in range(5)))
+
+
+@struct.dataclass
 class SACLearner:
     """Actor, the two critics ([2, ...] stacked) and their targets, log alpha, Adam states."""
 
@@ -132,11 +148,9 @@ class SAC:
         inputs = jnp.concatenate([x, action], axis=-1)
         return jax.vmap(lambda p: self.critic_net.apply(p, inputs)[..., 0])(critics)
 
-    def step(self, learner: SACLearner, batch: SACBatch, key: jax.Array) -> tuple[SACLearner, jax.Array]:
-        """One critic, actor and temperature step, then the target update.
-
-        Returns the learner and [critic loss, actor loss, alpha loss, alpha, entropy].
-        """
+    def step(self, learner: SACLearner, batch: SACBatch, key: jax.Array) -> tuple[SACLearner, SACInfo]:
+        """One critic, actor and temperature step, then the target update; returns the learner
+        and what the step reports."""
         actor_tx, critic_tx, alpha_tx = self.optimizers
         next_key, actor_key = jax.random.split(key)
         alpha = jnp.exp(learner.log_alpha)
@@ -173,4 +187,5 @@ class SAC:
         target_critics = optax.incremental_update(critics, learner.target_critics, self.tau)
         learner = SACLearner(actor=actor, critics=critics, target_critics=target_critics, log_alpha=log_alpha,
                              actor_opt=actor_opt, critic_opt=critic_opt, alpha_opt=alpha_opt)
-        return learner, jnp.stack([c_loss, a_loss, t_loss, jnp.exp(log_alpha), entropy])
+        return learner, SACInfo(critic_loss=c_loss, actor_loss=a_loss, alpha_loss=t_loss, alpha=jnp.exp(log_alpha),
+                                entropy=entropy)

@@ -31,11 +31,22 @@ import optax
 from flax import struct
 
 from mjx_emp.algos.he.agent import HEAgent, HEState
+from mjx_emp.checks import compile_identity
 from mjx_emp.counters import StepCounter
+from mjx_emp.errors import ConfigError
 from mjx_emp.learners.common import all_finite
 from mjx_emp.learners.ddpg import DDPGLearner, GoalTransition, ddpg_losses, ddpg_step, goal_transitions
 from mjx_emp.metrics import epoch_header, running_min_distance
-from mjx_emp.nets import MLP, LevelParams, goal_conditioned_q, goal_features, greedy_batch, level_policy
+from mjx_emp.nets import (
+    MLP,
+    LevelParams,
+    aimed_policy,
+    goal_conditioned_q,
+    goal_features,
+    greedy_batch,
+    level_policy,
+    random_policy,
+)
 from mjx_emp.phase2.config import Phase2Config, check_phase2_config
 from mjx_emp.replay import ReplayBuffer, flatten_rows, replay_init, replay_insert, replay_sample
 from mjx_emp.rollout.collect import CollectTotals, collect
@@ -88,6 +99,8 @@ class Phase2Loop:
 
     cfg: Phase2Config
     trace_name: str = TRAIN_EPOCH_TRACE
+    diagnostic_tops: tuple[str, ...] = ()
+    """Scripted policies this trainer can put in its learned policy's place for evaluation."""
 
     @property
     def env(self):
@@ -238,6 +251,10 @@ class Phase2Loop:
         return None
 
 
+TOP_POLICIES = ("learned", "aimed", "random")
+"""What can sit on top of the frozen skills in phase 2 (see ``Phase2Trainer.top``)."""
+
+
 @dataclasses.dataclass(frozen=True)
 class Phase2Trainer(Phase2Loop):
     """Static side of phase 2: the skill agent, the added level's networks, the k+1-level rollout.
@@ -247,13 +264,25 @@ class Phase2Trainer(Phase2Loop):
     """
 
     phase1: HEAgent
-    cfg: Phase2Config
+    cfg: Phase2Config = dataclasses.field(compare=False)
+    top: str = "learned"
+    """The added level's policy: ``learned`` (the phase-2 actor), or for the chaining
+    diagnostic ``aimed`` (each subgoal straight at the goal, clipped into the top box at s)
+    or ``random`` (uniform in that box); the latter two ignore the actor."""
+    diagnostic_tops = ("aimed", "random")  # a class attribute, not a field
     hierarchy: Hierarchy = dataclasses.field(init=False, compare=False, repr=False)
+    identity: Phase2Config = dataclasses.field(init=False, repr=False)
+    """What it compares and hashes by, beside ``phase1`` and ``top``: ``cfg`` without its epoch count."""
 
     def __post_init__(self):
         check_phase2_config(self.cfg, self.phase1.env.goal_size)
+        if self.top not in TOP_POLICIES:
+            raise ConfigError(f"top: {self.top!r} is unknown; allowed values: {list(TOP_POLICIES)}")
+        object.__setattr__(self, "identity", compile_identity(self.cfg))
         k, phase1 = self.level, self.phase1.cfg
-        policy = level_policy(self.env, self.actor_net, self.phase1.nets.learned_box(k - 1))
+        box = self.phase1.nets.learned_box(k - 1)
+        policy = {"learned": lambda: level_policy(self.env, self.actor_net, box),
+                  "aimed": lambda: aimed_policy(self.env, box), "random": lambda: random_policy(box)}[self.top]()
         hierarchy = Hierarchy(
             self.env, self.phase1.hierarchy.policies + (policy,),
             n=tuple(phase1.n) + (self.cfg.n,), eps=tuple(phase1.eps) + (self.cfg.eps,),

@@ -25,6 +25,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from mjx_emp.algos.skills.agent import SkillAgent, SkillState
+from mjx_emp.checks import compile_identity
 from mjx_emp.counters import StepCounter
 from mjx_emp.envs.env import EnvState
 from mjx_emp.learners.ddpg import DDPGLearner, GoalTransition
@@ -72,11 +73,14 @@ class FlatPhase2Trainer(Phase2Loop):
     """Static side of phase 2 over a flat learner's skills; hashes by the two configs."""
 
     phase1: SkillAgent
-    cfg: Phase2Config
+    cfg: Phase2Config = dataclasses.field(compare=False)
+    identity: Phase2Config = dataclasses.field(init=False, repr=False)
+    """What it compares and hashes by, beside ``phase1``: ``cfg`` without its epoch count."""
     trace_name = TRAIN_EPOCH_TRACE  # a class attribute, not a field
 
     def __post_init__(self):
         check_phase2_config(self.cfg, self.phase1.env.goal_size)
+        object.__setattr__(self, "identity", compile_identity(self.cfg))
 
     @property
     def action_size(self) -> int:

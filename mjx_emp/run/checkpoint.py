@@ -28,13 +28,11 @@ import jax.numpy as jnp
 import numpy as np
 import orbax.checkpoint as ocp
 
-from mjx_emp.algos.he.config import HEConfig
 from mjx_emp.checks import config_from_dict
 from mjx_emp.counters import digits
 from mjx_emp.errors import CheckpointError, CheckpointWriteError
 
-CHECKPOINT_SUBDIR = "checkpoints"
-REJECTED_SUBDIR = "rejected-checkpoints"
+from mjx_emp.run.store import CHECKPOINT_SUBDIR, REJECTED_SUBDIR
 RESUMABLE_CHANGES = ("epochs",)
 """Config fields a resumed run may change: they do not alter what one epoch computes."""
 
@@ -221,6 +219,19 @@ def config_mismatches(saved: dict, expected: Any) -> list[str]:
     ]
 
 
+@contextlib.contextmanager
+def _quiet_reader(read_only: bool) -> Iterator[None]:
+    """Hold back absl's warnings while a read-only manager is made (they say it is read-only)."""
+    absl = logging.getLogger("absl")
+    level = absl.level
+    if read_only:
+        absl.setLevel(logging.ERROR)
+    try:
+        yield
+    finally:
+        absl.setLevel(level)
+
+
 def stored_epoch(state: Any) -> int | None:
     """The epoch counter a restored state carries (one per seed or shard, all equal), if it has one."""
     epoch = getattr(state, "epoch", None)
@@ -233,8 +244,6 @@ class Checkpoints:
 
     run_dir: Path
     keep: int = 3
-    config_type: type = HEConfig
-    """The config dataclass stored with each checkpoint."""
     read_only: bool = False
     """A reader (eval, plot, render, phase 2 loading its skills): it saves, prunes and cleans up
     nothing, so a run that another process is writing is left as it is. Only the run's writer
@@ -252,13 +261,14 @@ class Checkpoints:
                 primary_host=0, active_processes={0}))
         if self.read_only:
             several_hosts = {**several_hosts, "create": False}
-        options = ocp.CheckpointManagerOptions(
-            max_to_keep=None if self.read_only else self.keep, cleanup_tmp_directories=not self.read_only,
-            read_only=self.read_only, enable_async_checkpointing=True, **several_hosts,
-        )
-        self.manager = None if jax.process_index() != 0 else ocp.CheckpointManager(
-            self.directory.absolute(), options=options, item_names=("state", "layout", "config", "digests"),
-        )
+        with _quiet_reader(self.read_only):  # orbax warns that a reader's manager is read-only: it is meant to be
+            options = ocp.CheckpointManagerOptions(
+                max_to_keep=None if self.read_only else self.keep, cleanup_tmp_directories=not self.read_only,
+                read_only=self.read_only, enable_async_checkpointing=True, **several_hosts,
+            )
+            self.manager = None if jax.process_index() != 0 else ocp.CheckpointManager(
+                self.directory.absolute(), options=options, item_names=("state", "layout", "config", "digests"),
+            )
 
     @property
     def directory(self) -> Path:
@@ -330,12 +340,12 @@ class Checkpoints:
             if exc_type is None:  # nothing else is being reported: this is the news
                 raise
 
-    def read_config(self, epoch: int) -> Any:
-        """The config stored with ``epoch``'s checkpoint."""
+    def read_config(self, epoch: int, config_type: type) -> Any:
+        """The config stored with ``epoch``'s checkpoint, as a ``config_type``."""
         path = self.step_dir(epoch) / "config"
         try:
             saved = self.manager.restore(epoch, args=ocp.args.Composite(config=ocp.args.JsonRestore())).config
-            return config_from_dict(saved, self.config_type)
+            return config_from_dict(saved, config_type)
         except Exception as err:  # orbax and JSON raise many types; all mean "unreadable"
             raise CheckpointError(f"{path}: unreadable config ({type(err).__name__}: {err})") from err
 
@@ -345,7 +355,7 @@ class Checkpoints:
         ``template`` is a state (or its ``jax.eval_shape``) of the expected config.
         """
         step_dir = self.step_dir(epoch)
-        saved = dataclasses.asdict(self.read_config(epoch))
+        saved = dataclasses.asdict(self.read_config(epoch, type(expected)))
         mismatches = config_mismatches(json.loads(json.dumps(saved)), expected)
         if mismatches:
             raise CheckpointError(f"{step_dir / 'config'} does not match the run's config.json: " + "; ".join(mismatches))

@@ -3,6 +3,7 @@ minimum distance to goal. `mjx-emp eval` and the experiment scripts report these
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import jax
@@ -51,7 +52,12 @@ def skill_figures(agent, state, key) -> dict:
 
 def phase2_figures(trainer, epoch: int, state, key, episodes: int) -> dict:
     """The paper's phase-2 figure of a phase-2 state: its task and the greedy policy's mean
-    minimum distance to goal and success on at least ``episodes`` goals from the region."""
+    minimum distance to goal and success on at least ``episodes`` goals from the region; where
+    the trainer offers them (``diagnostic_tops``), the same figures of the scripted policies on
+    the same goals: ``aimed`` (each subgoal straight at the goal) and ``random`` subgoals."""
     cfg = trainer.cfg
-    return {"epoch": epoch, "n": cfg.n, "eps": cfg.eps, "region": list(cfg.region),
-            "region_offset": list(cfg.region_offset), **trainer.evaluate(state, key, episodes)}
+    figures = {"epoch": epoch, "n": cfg.n, "eps": cfg.eps, "region": list(cfg.region),
+               "region_offset": list(cfg.region_offset), **trainer.evaluate(state, key, episodes)}
+    for top in trainer.diagnostic_tops:  # the same goals (same key) under the scripted policies
+        figures[top] = dataclasses.replace(trainer, top=top).evaluate(state, key, episodes)
+    return figures

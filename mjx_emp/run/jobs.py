@@ -15,10 +15,19 @@ from mjx_emp.algos.registry import (
     algorithm_of,
     make_agent,
 )
-from mjx_emp.commands import Phase2Experiment, ResumeExperiment, TrainExperiment
+from mjx_emp.commands import (
+    Phase2Experiment,
+    ResumeExperiment,
+    Tracking,
+    TrainExperiment,
+    check_phase2,
+    check_resume,
+    check_train,
+)
 from mjx_emp.errors import ConfigError
-from mjx_emp.phase2.config import Phase2Config, check_phase2_config
+from mjx_emp.phase2.config import Phase2Config
 from mjx_emp.run.loop import train_to_the_end
+from mjx_emp.run.tracking import open_trackers
 from mjx_emp.run.store import (
     CONFIG_FILE,
     METRICS_FILE,
@@ -28,6 +37,7 @@ from mjx_emp.run.store import (
     default_run_dir,
     fresh_run_dir,
     keep_metrics_through,
+    newest_checkpoint_on_disk,
     read_run_config,
     run_lock,
     write_atomically,
@@ -35,17 +45,17 @@ from mjx_emp.run.store import (
 )
 
 
-def _check_devices(num_devices: int) -> None:
-    if num_devices < 0:
-        raise ConfigError(f"num_devices: must be >= 0 (0: every local device); got {num_devices}")
+def _to_the_end(trainer, state, checkpoints, run_dir: Path, tracking: Tracking,
+                on_epoch: Callable[[dict], None] | None = None):
+    """Train to the config's epoch count, each epoch's metrics also handed to the trackers that
+    ``tracking`` asks for and to ``on_epoch``."""
+    with open_trackers(tracking, run_dir, config_json(trainer.cfg)) as track:
+        report = [call for call in (track, on_epoch) if call is not None]
+        return train_to_the_end(trainer, state, checkpoints, run_dir,
+                                (lambda metrics: [call(metrics) for call in report]) if report else None)
 
 
-def _check_keep(keep_checkpoints: int) -> None:
-    if keep_checkpoints < 1:
-        raise ConfigError(f"keep_checkpoints: must be >= 1; got {keep_checkpoints}")
-
-
-def _train_new(trainer, state, run_dir: Path, keep_checkpoints: int, config_type: type,
+def _train_new(trainer, state, run_dir: Path, keep_checkpoints: int, tracking: Tracking,
                on_epoch: Callable[[dict], None] | None = None):
     """Write the config, checkpoint ``state`` as epoch 0, and train to the end (with several
     hosts, the lead writes)."""
@@ -54,9 +64,9 @@ def _train_new(trainer, state, run_dir: Path, keep_checkpoints: int, config_type
 
     if is_lead():
         write_config(run_dir, trainer.cfg)
-    checkpoints = Checkpoints(run_dir, keep_checkpoints, config_type)
+    checkpoints = Checkpoints(run_dir, keep_checkpoints)
     checkpoints.save(0, gather_to_host(state), trainer.cfg)
-    return train_to_the_end(trainer, state, checkpoints, run_dir, on_epoch)
+    return _to_the_end(trainer, state, checkpoints, run_dir, tracking, on_epoch)
 
 
 def training_program(cfg, num_devices: int = 0):
@@ -89,6 +99,7 @@ def train(exp: TrainExperiment, on_epoch: Callable[[dict], None] | None = None):
     returns the final state. ``on_epoch`` (one run, not a seed group) sees each epoch's metrics."""
     from mjx_emp.run.hosts import join_hosts, wait_for_all
 
+    check_train(exp)
     several = join_hosts(exp.coordinator_address, exp.num_processes, exp.process_id)
     if exp.seeds:
         if several:
@@ -99,11 +110,9 @@ def train(exp: TrainExperiment, on_epoch: Callable[[dict], None] | None = None):
 
         return train_seeds(exp)
     algorithm = algorithm_of(exp.config)
-    algorithm.check(exp.config)
-    _check_keep(exp.keep_checkpoints)
-    _check_devices(exp.num_devices)
     cfg = split_for_devices(exp.config, exp.num_devices)
-    algorithm.check(cfg)
+    if cfg is not exp.config:
+        algorithm.check(cfg)  # the split: its environments must divide among the shards
     if several and not exp.run_dir:
         raise ConfigError("run_dir: several hosts must be given the same --run-dir (on a shared filesystem)")
     trainer = training_program(cfg, exp.num_devices)
@@ -114,7 +123,7 @@ def train(exp: TrainExperiment, on_epoch: Callable[[dict], None] | None = None):
     with run_lock(run_dir, "run_dir"):
         if cfg.shards > 1:
             print(f"split into {cfg.shards} shards on {trainer.num_devices} device(s)", flush=True)
-        return _train_new(trainer, trainer.init(), run_dir, exp.keep_checkpoints, algorithm.config_type, on_epoch)
+        return _train_new(trainer, trainer.init(), run_dir, exp.keep_checkpoints, exp.tracking, on_epoch)
 
 
 def check_memory(program) -> None:
@@ -133,7 +142,7 @@ def _restore(run_dir: Path, trainer, template, fallback: bool = False, epoch: in
     (set aside unusable newer checkpoints, remove half-written ones); any other caller reads."""
     from mjx_emp.run.checkpoint import Checkpoints
 
-    with Checkpoints(run_dir, config_type=type(trainer.cfg), read_only=not writer) as checkpoints:
+    with Checkpoints(run_dir, read_only=not writer) as checkpoints:
         if epoch is None:
             return checkpoints.restore_latest(template, trainer.cfg, fallback)
         if epoch not in checkpoints.epochs():
@@ -178,16 +187,20 @@ def load_program(run_dir: Path, fallback: bool = False, epochs: int | None = Non
     return program, epoch, (program.place(state) if hasattr(program, "place") else state)
 
 
-def _resume(exp: ResumeExperiment, load: Callable):
-    """Continue a run directory from its newest good checkpoint (``load`` restores it)."""
-    _check_keep(exp.keep_checkpoints)
-    _check_devices(exp.num_devices)
-    if exp.epochs is not None and exp.epochs < 1:
-        raise ConfigError(f"epochs: must be >= 1; got {exp.epochs}")
+def _resume(exp: ResumeExperiment, load: Callable, start_over: Callable):
+    """Continue a run directory from its newest good checkpoint (``load`` restores it); one that
+    a kill stopped before its first checkpoint starts over with what ``start_over`` builds."""
+    check_resume(exp)
     run_dir = Path(exp.resume)
     if not (run_dir / CONFIG_FILE).exists():  # a directory that is no run is refused before anything is written
         raise ConfigError(f"resume: {str(run_dir)!r} has no {CONFIG_FILE}; is it a run directory?")
     with run_lock(run_dir, "resume"):
+        if newest_checkpoint_on_disk(run_dir) is None:
+            trainer = start_over(run_dir, exp)
+            print(f"{run_dir} was stopped before its first checkpoint; starting it over from its {CONFIG_FILE}",
+                  flush=True)
+            keep_metrics_through(run_dir / METRICS_FILE, 0)
+            return _train_new(trainer, trainer.init(), run_dir, exp.keep_checkpoints, exp.tracking)
         trainer, epoch, state = load(run_dir, exp.fallback, exp.epochs, field="resume")
         if trainer.cfg.epochs < epoch:  # before anything is rewritten
             raise ConfigError(f"epochs: {run_dir} is at epoch {epoch}; give at least that many; got {trainer.cfg.epochs}")
@@ -196,8 +209,8 @@ def _resume(exp: ResumeExperiment, load: Callable):
         print(f"resuming {run_dir} from epoch {epoch}", flush=True)
         keep_metrics_through(run_dir / METRICS_FILE, epoch)
         write_config(run_dir, trainer.cfg)
-        checkpoints = Checkpoints(run_dir, exp.keep_checkpoints, type(trainer.cfg))
-        return train_to_the_end(trainer, state, checkpoints, run_dir)
+        checkpoints = Checkpoints(run_dir, exp.keep_checkpoints)
+        return _to_the_end(trainer, state, checkpoints, run_dir, exp.tracking)
 
 
 def resume(exp: ResumeExperiment):
@@ -206,15 +219,24 @@ def resume(exp: ResumeExperiment):
     otherwise; returns the final state."""
     if (Path(exp.resume) / SKILLS_FILE).exists():
         return resume_phase2(exp)
-    return _resume(exp, functools.partial(load_program, num_devices=exp.num_devices))
+    return _resume(exp, functools.partial(load_program, num_devices=exp.num_devices), _program_from_config)
+
+
+def _program_from_config(run_dir: Path, exp: ResumeExperiment):
+    """What trains RUN_DIR afresh from its config.json (a run stopped before its first checkpoint)."""
+    return training_program(_with_epochs(read_run_config(run_dir, "resume"), exp.epochs), exp.num_devices)
+
+
+def _phase2_without_checkpoint(run_dir: Path, exp: ResumeExperiment):
+    """A phase-2 directory stopped before its first checkpoint holds no frozen skills to go on
+    from: say how to start it again (``mjx-emp phase2`` reuses such a directory)."""
+    raise ConfigError(f"resume: {run_dir} was stopped before its first checkpoint and holds no skills to go on "
+                      f"from; start it again with `mjx-emp phase2 PHASE1_RUN_DIR --out {run_dir}`")
 
 
 def train_phase2(exp: Phase2Experiment):
     """Train phase 2 on a phase-1 run's skills in a new phase-2 directory; returns the final state."""
-    check_phase2_config(exp.config)
-    _check_keep(exp.keep_checkpoints)
-    if not exp.run_dir:
-        raise ConfigError("run_dir: give the phase-1 run directory, e.g. `mjx-emp phase2 runs/pm1`")
+    check_phase2(exp)
     from mjx_emp.phase2.build import make_phase2_trainer
 
     requested = None if exp.config.phase1_epoch < 0 else exp.config.phase1_epoch
@@ -225,7 +247,7 @@ def train_phase2(exp: Phase2Experiment):
     with run_lock(out, "out"):
         print(f"phase 2 on the skills of {exp.run_dir} (epoch {epoch}), writing to {out}", flush=True)
         write_atomically(out / SKILLS_FILE, json.dumps(config_json(skills.cfg), indent=1))
-        return _train_new(trainer, trainer.init(skills_state), out, exp.keep_checkpoints, Phase2Config)
+        return _train_new(trainer, trainer.init(skills_state), out, exp.keep_checkpoints, exp.tracking)
 
 
 def load_phase2(phase2_dir: Path, fallback: bool = False, epochs: int | None = None, field: str = "run_dir",
@@ -249,4 +271,4 @@ def load_phase2(phase2_dir: Path, fallback: bool = False, epochs: int | None = N
 
 def resume_phase2(exp: ResumeExperiment):
     """Continue a phase-2 directory from its newest good checkpoint; returns the final state."""
-    return _resume(exp, functools.partial(load_phase2, writer=True))
+    return _resume(exp, functools.partial(load_phase2, writer=True), _phase2_without_checkpoint)

@@ -19,15 +19,17 @@ from pathlib import Path
 from typing import Any
 
 from mjx_emp.errors import Interrupted, TrainingDiverged
-from mjx_emp.run.store import METRICS_FILE
+from mjx_emp.run.store import METRICS_FILE, writing
 
 
 @contextlib.contextmanager
-def progress_reporter(total_epochs: int, first_epoch: int,
-                      describe: Callable[[dict], str]) -> Iterator[Callable[[dict], None]]:
+def progress_reporter(total_epochs: int, first_epoch: int, describe: Callable[[dict], str],
+                      console: Any = None) -> Iterator[Callable[[dict], None]]:
     """Report each epoch: a live progress bar on a terminal, one plain line per epoch otherwise.
 
-    ``describe`` turns an epoch's metrics into the short summary shown.
+    ``describe`` turns an epoch's metrics into the short summary shown; on a narrow terminal
+    (80 columns) the summary wraps under the bar instead of being cut. ``console``: rich's
+    console to draw on (default: standard output).
     """
     from rich.console import Console
     from rich.progress import (
@@ -37,14 +39,15 @@ def progress_reporter(total_epochs: int, first_epoch: int,
         TextColumn,
         TimeRemainingColumn,
     )
+    from rich.table import Column
 
-    console = Console()
+    console = console or Console()
     if not console.is_terminal:
         yield lambda metrics: print(f"epoch {metrics['epoch']:4d}  {describe(metrics)}", flush=True)
         return
-    columns = (TextColumn("epoch"), MofNCompleteColumn(), BarColumn(), TimeRemainingColumn(),
-               TextColumn("{task.fields[info]}"))
-    with Progress(*columns, console=console) as bar:
+    columns = (TextColumn("epoch"), MofNCompleteColumn(), BarColumn(bar_width=12), TimeRemainingColumn(),
+               TextColumn("{task.fields[info]}", table_column=Column(ratio=1, no_wrap=False, overflow="fold")))
+    with Progress(*columns, console=console, expand=True) as bar:
         task = bar.add_task("train", total=total_epochs, completed=first_epoch, info="compiling")
         yield lambda metrics: bar.update(task, completed=metrics["epoch"], info=describe(metrics))
 
@@ -139,12 +142,19 @@ class _SignalStop:
             raise Interrupted(signal.Signals(self.pending).name, self.pending)
 
 
+def _metrics_log(run_dir: Path):
+    """RUN_DIR/metrics.jsonl opened for appending (a failure to open it names the run's newest
+    intact checkpoint, :func:`~mjx_emp.run.store.writing`)."""
+    with writing(run_dir / METRICS_FILE, run_dir):
+        return open(run_dir / METRICS_FILE, "a")
+
+
 def _train_members(program, state, members, report, split, gather_to_host, lead: bool, epochs: int,
                    stops: _SignalStop):
     import jax
 
     with contextlib.ExitStack() as stack:
-        logs = [stack.enter_context(open(member.run_dir / METRICS_FILE, "a") if lead else open(os.devnull, "w"))
+        logs = [stack.enter_context(_metrics_log(member.run_dir) if lead else open(os.devnull, "w"))
                 for member in members]
         while _epoch_of(split(state, None)[0][0]) < epochs:
             start = time.perf_counter()
@@ -170,8 +180,9 @@ def _train_members(program, state, members, report, split, gather_to_host, lead:
                     save_seconds = member.checkpoints.save(epoch, member_state, member.trainer.cfg)
                     metrics = member.trainer.metrics(member_state, member_stats, seconds)
                     metrics["checkpoint_blocked_s"] = save_seconds  # the write itself continues in the background
-                    log.write(json.dumps(metrics) + "\n")
-                    log.flush()
+                    with writing(member.run_dir / METRICS_FILE, member.run_dir):
+                        log.write(json.dumps(metrics) + "\n")
+                        log.flush()
                     if member is members[0] and lead:
                         report(metrics)
     for member in members:

@@ -20,7 +20,6 @@ import jax.numpy as jnp
 
 from mjx_emp.algos.registry import algorithm_of, make_agent
 from mjx_emp.commands import TrainExperiment
-from mjx_emp.errors import ConfigError
 from mjx_emp.run import loop, store
 
 
@@ -68,24 +67,11 @@ def seed_run_dirs(base: str, seeds: tuple[int, ...]) -> list[str]:
     return [f"{base}-s{seed}" for seed in seeds]
 
 
-def check_seeds(seeds: tuple[int, ...]) -> None:
-    """Seeds must be distinct non-negative integers (each names a run directory)."""
-    if len(set(seeds)) != len(seeds) or any(seed < 0 for seed in seeds):
-        raise ConfigError(f"seeds: must be distinct integers >= 0; got {list(seeds)}")
-
-
 def train_seeds(exp: TrainExperiment) -> Any:
     """Train ``exp.seeds`` of ``exp.config`` as one vmapped program, one run directory per
-    seed (RUN_DIR-s<seed>); returns the stacked final state."""
-
+    seed (RUN_DIR-s<seed>); returns the stacked final state. The request is one that
+    :func:`mjx_emp.commands.check_train` accepted (``jobs.train`` checks it)."""
     algorithm = algorithm_of(exp.config)
-    algorithm.check(exp.config)
-    check_seeds(exp.seeds)
-    if exp.config.shards > 1 or exp.num_devices > 1:
-        raise ConfigError(f"seeds: a seed group trains on one device, unsplit; got shards={exp.config.shards}, "
-                          f"num_devices={exp.num_devices}")
-    if exp.keep_checkpoints < 1:
-        raise ConfigError(f"keep_checkpoints: must be >= 1; got {exp.keep_checkpoints}")
     base = exp.run_dir or store.default_run_dir(exp.config)
     dirs = [store.fresh_run_dir(path, "run_dir", "a run", "mjx-emp train") for path in seed_run_dirs(base, exp.seeds)]
     print(f"run directories: {', '.join(str(d) for d in dirs)}", flush=True)
@@ -104,7 +90,7 @@ def _train_group(exp: TrainExperiment, algorithm, dirs: list[Path]) -> Any:
     members = []
     for agent, run_dir, (seed_state, _) in zip(agents, dirs, group.split(state, None)):
         store.write_config(run_dir, agent.cfg)
-        checkpoints = Checkpoints(run_dir, exp.keep_checkpoints, algorithm.config_type)
+        checkpoints = Checkpoints(run_dir, exp.keep_checkpoints)
         checkpoints.save(0, seed_state, agent.cfg)
         members.append(loop.Member(agent, checkpoints, Path(run_dir)))
     try:

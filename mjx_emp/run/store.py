@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import errno
 import json
 import os
 import sys
@@ -25,7 +26,7 @@ from mjx_emp.algos.registry import (
     skill_kind,
 )
 from mjx_emp.checks import config_from_dict
-from mjx_emp.errors import ConfigError
+from mjx_emp.errors import ConfigError, WriteError
 from mjx_emp.phase2.config import Phase2Config
 
 CONFIG_FILE = "config.json"
@@ -35,6 +36,14 @@ METRICS_FILE = "metrics.jsonl"
 
 
 PHASE2_SUBDIR = "phase2"
+
+
+CHECKPOINT_SUBDIR = "checkpoints"
+"""In a run directory: one orbax checkpoint folder per kept epoch (:mod:`mjx_emp.run.checkpoint`)."""
+
+
+REJECTED_SUBDIR = "rejected-checkpoints"
+"""In a run directory: checkpoints a resume skipped as unusable, set aside rather than deleted."""
 
 
 SKILLS_FILE = "skills.json"
@@ -62,14 +71,52 @@ def prepare_run_dir(path: str, field: str = "run_dir") -> Path:
     return run_dir
 
 
-def write_atomically(path: Path, text: str) -> None:
-    """Replace ``path`` with ``text`` so that a reader (or a crash) sees the old or the new file."""
+UNWRITABLE = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EACCES, errno.EPERM, errno.EROFS})
+"""Reasons a write fails that the user can fix (space, permission, a read-only filesystem)."""
+
+
+def newest_checkpoint_on_disk(run_dir: Path) -> int | None:
+    """The newest epoch with a complete checkpoint folder in RUN_DIR/checkpoints (orbax renames
+    a folder to its epoch only once it is written), or None."""
+    folder = Path(run_dir) / CHECKPOINT_SUBDIR
+    epochs = [int(p.name) for p in folder.iterdir() if p.name.isdigit()] if folder.is_dir() else []
+    return max(epochs, default=None)
+
+
+@contextlib.contextmanager
+def writing(path: Path, run_dir: Path | None = None, chosen: bool = False) -> Iterator[None]:
+    """Where writing ``path`` fails for want of space or permission, raise one
+    :class:`~mjx_emp.errors.WriteError` naming the file, the reason and ``run_dir``'s newest
+    intact checkpoint (exit code 2 if the user ``chosen`` the path, else 1)."""
+    try:
+        yield
+    except OSError as err:
+        if err.errno not in UNWRITABLE:
+            raise
+        message = f"cannot write {path}: {err.strerror or os.strerror(err.errno)}"
+        if run_dir is not None:
+            newest = newest_checkpoint_on_disk(run_dir)
+            message += (f"; the newest intact checkpoint is epoch {newest} in {Path(run_dir) / CHECKPOINT_SUBDIR}"
+                        if newest is not None else f"; {run_dir} holds no complete checkpoint")
+        raise WriteError(message, exit_code=2 if chosen else 1) from None
+
+
+def write_atomically(path: Path, text: str, run_dir: Path | None = None, chosen: bool = False) -> None:
+    """Replace ``path`` with ``text`` so that a reader (or a crash) sees the old or the new file;
+    a write that fails for want of space or permission raises WriteError (:func:`writing`) and
+    leaves the old file."""
+    path = Path(path)
     tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "w") as f:
-        f.write(text)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    with writing(path, run_dir, chosen):
+        try:
+            with open(tmp, "w") as f:
+                f.write(text)
+                f.flush()
+                os.fsync(f.fileno())
+            os.replace(tmp, path)
+        finally:
+            if tmp.exists():
+                tmp.unlink(missing_ok=True)
 
 
 def read_run_config(run_dir: Path, field: str = "resume", config_type: type | None = None,
@@ -144,13 +191,15 @@ def keep_metrics_through(path: Path, epoch: int) -> None:
     if missing:
         print(f"mjx-emp: {path}: no metrics line for epochs {missing} (resuming from epoch {epoch})",
               file=sys.stderr, flush=True)
-    write_atomically(path, "".join(line + "\n" for line, _ in kept))
+    write_atomically(path, "".join(line + "\n" for line, _ in kept), path.parent)
 
 
-def _holds_a_run(run_dir: Path) -> bool:
-    from mjx_emp.run.checkpoint import CHECKPOINT_SUBDIR
-
-    return (run_dir / METRICS_FILE).exists() or (run_dir / CHECKPOINT_SUBDIR).exists()
+def holds_a_run(run_dir: Path) -> bool:
+    """Whether RUN_DIR holds a run worth keeping: a complete checkpoint or a metrics line. A
+    directory that a kill left before its first checkpoint (config.json, half-written
+    checkpoint folders) holds none."""
+    metrics = Path(run_dir) / METRICS_FILE
+    return newest_checkpoint_on_disk(run_dir) is not None or (metrics.exists() and metrics.stat().st_size > 0)
 
 
 LOCK_FILE = ".lock"
@@ -202,13 +251,16 @@ def run_lock(run_dir: Path, field: str) -> Iterator[None]:
 
 
 def fresh_run_dir(path: str, field: str, what: str, command: str) -> Path:
-    """Create the directory of a new run; one that already holds ``what`` is refused, naming ``field``."""
+    """Create the directory of a new run; one that already holds ``what`` (:func:`holds_a_run`)
+    is refused, naming ``field``; one a kill left before its first checkpoint is reused."""
     run_dir = prepare_run_dir(path, field)
-    if _holds_a_run(run_dir):
+    if holds_a_run(run_dir):
         raise ConfigError(
             f"{field}: {str(run_dir)!r} already holds {what}; continue it with "
             f"`{command} --resume {run_dir}` or choose another --{field.replace('_', '-')}"
         )
+    if (run_dir / CONFIG_FILE).exists() or (run_dir / CHECKPOINT_SUBDIR).exists():
+        print(f"note: {run_dir} holds {what} stopped before its first checkpoint; it is started anew", flush=True)
     return run_dir
 
 
@@ -220,7 +272,7 @@ def config_json(cfg) -> dict:
 
 def write_config(run_dir: Path, cfg) -> None:
     """RUN_DIR/config.json of ``cfg`` (see :func:`config_json`), written atomically."""
-    write_atomically(Path(run_dir) / CONFIG_FILE, json.dumps(config_json(cfg), indent=1))
+    write_atomically(Path(run_dir) / CONFIG_FILE, json.dumps(config_json(cfg), indent=1), Path(run_dir))
 
 
 def run_skill_kind(run_dir: Path, field: str = "run_dir") -> str:

@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from mjx_emp.algos.registry import GOAL_SPACES, skill_kind
-from mjx_emp.errors import RenderError
+from mjx_emp.errors import ConfigError, RenderError
 
 if TYPE_CHECKING:  # importing the rollout imports mujoco, which must wait for configure_headless_gl
     from mjx_emp.rollout.hierarchy import RolloutPlan
@@ -32,10 +32,19 @@ HEADLESS_HELP = (
 )
 
 
+GL_BACKENDS = ("egl", "osmesa", "glx", "glfw")
+"""The MUJOCO_GL values MuJoCo accepts on Linux for an offscreen renderer."""
+
+
 def configure_headless_gl() -> None:
-    """Default MuJoCo to headless EGL rendering; call before ``mujoco`` is first imported."""
+    """Default MuJoCo to headless EGL rendering; call before ``mujoco`` is first imported. A
+    MUJOCO_GL that MuJoCo would refuse on import is a RenderError naming the values it takes."""
     os.environ.setdefault("MUJOCO_GL", "egl")
-    if os.environ["MUJOCO_GL"] == "egl":
+    backend = os.environ["MUJOCO_GL"].lower().strip()
+    if backend not in GL_BACKENDS:
+        raise RenderError(f"MUJOCO_GL={os.environ['MUJOCO_GL']!r} is not a backend MuJoCo can render with; "
+                          f"allowed values: {list(GL_BACKENDS)}")
+    if backend == "egl":
         os.environ.setdefault("EGL_PLATFORM", "surfaceless")
 
 
@@ -46,6 +55,9 @@ class Recording:
     qpos: np.ndarray  # [T, nq]
     mocap_pos: np.ndarray  # [T, nmocap, 3]
     goals: np.ndarray  # [T, k, goal_size], absolute h-coordinates
+    box: np.ndarray | None = None
+    """The top goal-space box at s0 as [low, high] in h-coordinates ([2, goal_size]), drawn on the
+    floor; None where the skills have no box (flat skill learners, phase 2)."""
 
 
 def record_rollout(plan: RolloutPlan, key, steps: int) -> Recording:
@@ -74,7 +86,11 @@ def skill_recording(agent, state, key, steps: int) -> Recording:
     registry entry's kind of skills calls for: the chain of top-level skills, every level's goal
     recorded, for goal spaces; skills z from the prior one after another (no goals) otherwise."""
     if skill_kind(agent.cfg) == GOAL_SPACES:
-        return record_rollout(agent.skill_chain(state), key, steps)
+        recording = record_rollout(agent.skill_chain(state), key, steps)
+        top = agent.goal_spaces(state)[-1]
+        start = np.asarray(agent.env.goal_of_obs(agent.initial_obs))
+        centre, half_width = start + np.asarray(top["shift"]), np.asarray(top["half_width"])
+        return dataclasses.replace(recording, box=np.stack([centre - half_width, centre + half_width]))
     qpos, mocap = agent.record_skills(state, key, steps)
     return Recording(qpos, mocap, np.zeros((steps, 0, len(agent.env.goal_qpos))))
 
@@ -84,7 +100,7 @@ def first_skills(recording: Recording, skills: int) -> Recording:
     top = recording.goals[:, -1]
     ends = np.flatnonzero(np.any(top[1:] != top[:-1], axis=-1)) + 1  # a new top subgoal at these steps
     stop = ends[skills - 1] + 1 if len(ends) >= skills else len(top)
-    return Recording(recording.qpos[:stop], recording.mocap_pos[:stop], recording.goals[:stop])
+    return Recording(recording.qpos[:stop], recording.mocap_pos[:stop], recording.goals[:stop], recording.box)
 
 
 def marker_position(goal: np.ndarray, height: float = 0.1) -> np.ndarray:
@@ -93,8 +109,67 @@ def marker_position(goal: np.ndarray, height: float = 0.1) -> np.ndarray:
     return np.array([x, y, height])
 
 
-def render_frames(env, recording: Recording, width: int, height: int, distance: float) -> np.ndarray:
-    """RGB frames [T, height, width, 3] following the torso from above, subgoals as spheres."""
+TRAIL_COLOUR = (0.2, 0.85, 0.95)
+"""The fading trail of h(s): cyan, apart from every level's marker colour."""
+BOX_COLOUR = (0.95, 0.3, 0.3, 0.9)
+"""The top goal-space box's outline on the floor."""
+TRAIL_STEPS = 80
+"""How many past steps of h(s) the trail shows, fading out."""
+
+
+def view_of(env, recording: Recording, fovy: float) -> tuple[np.ndarray, float]:
+    """A fixed camera's look-at point and distance that keep the whole recording in view: every
+    position of h(s), every goal and the top box, with a margin."""
+    points = [recording.qpos[:, list(env.goal_qpos)].reshape(-1, len(env.goal_qpos)),
+              recording.goals.reshape(-1, recording.goals.shape[-1])]
+    if recording.box is not None:
+        points.append(recording.box)
+    points = np.concatenate([marker_position_all(p) for p in points if len(p)])
+    low, high = points.min(0), points.max(0)
+    centre = (low + high) / 2
+    radius = 1.15 * max(float(np.max(high - low)) / 2, 0.5) + 0.3  # a margin for the robot's body around h(s)
+    return centre, radius / np.tan(np.radians(fovy) / 2)
+
+
+def marker_position_all(goals: np.ndarray, height: float = 0.0) -> np.ndarray:
+    """:func:`marker_position` of every row of ``goals`` ([N, goal_size]) -> [N, 3]."""
+    return np.stack([marker_position(g, height) for g in goals]) if len(goals) else np.zeros((0, 3))
+
+
+def _add_geom(scene, geom_type, size, pos, rgba) -> None:
+    import mujoco
+
+    if scene.ngeom >= scene.maxgeom:
+        return
+    mujoco.mjv_initGeom(scene.geoms[scene.ngeom], type=geom_type, size=np.asarray(size, float),
+                        pos=np.asarray(pos, float), mat=np.eye(3).ravel(), rgba=np.asarray(rgba, float))
+    scene.ngeom += 1
+
+
+def _draw_box_outline(scene, box: np.ndarray) -> None:
+    """The top goal-space box as four thin bars on the floor (an interval on the x axis in 1-D)."""
+    import mujoco
+
+    low, high = marker_position(box[0], 0.01), marker_position(box[1], 0.01)
+    if box.shape[1] < 2:
+        low[1], high[1] = -0.5, 0.5
+    thick = 0.03
+    centre = (low + high) / 2
+    half = (high - low) / 2
+    for axis in (0, 1):
+        for side in (low, high):
+            pos = centre.copy()
+            pos[1 - axis] = side[1 - axis]
+            size = [thick, thick, thick]
+            size[axis] = half[axis] + thick
+            _add_geom(scene, mujoco.mjtGeom.mjGEOM_BOX, size, pos, BOX_COLOUR)
+
+
+def render_frames(env, recording: Recording, width: int, height: int, camera_mode: str = "fixed",
+                  distance: float = 6.0) -> np.ndarray:
+    """RGB frames [T, height, width, 3]: every level's current subgoal as a sphere in its fixed
+    colour, a fading trail of h(s) and the top goal-space box on the floor. The ``fixed`` camera
+    keeps the whole recording in view; ``follow`` tracks the torso at ``distance``."""
     import mujoco
 
     try:
@@ -104,39 +179,90 @@ def render_frames(env, recording: Recording, width: int, height: int, distance: 
     data = mujoco.MjData(env.mj_model)
     camera = mujoco.MjvCamera()
     camera.type = mujoco.mjtCamera.mjCAMERA_FREE
-    camera.distance, camera.elevation, camera.azimuth = distance, -60.0, 90.0
+    camera.elevation, camera.azimuth = -60.0, 90.0
+    if camera_mode == "fixed":
+        camera.lookat[:], camera.distance = view_of(env, recording, float(env.mj_model.vis.global_.fovy))
+    else:
+        camera.distance = distance
+    torsos = marker_position_all(recording.qpos[:, list(env.goal_qpos)], height=0.05)
     frames = []
     try:
-        for qpos, mocap_pos, goals in zip(recording.qpos, recording.mocap_pos, recording.goals):
+        for step, (qpos, mocap_pos, goals) in enumerate(zip(recording.qpos, recording.mocap_pos, recording.goals)):
             data.qpos[:] = qpos
             if env.mj_model.nmocap:
                 data.mocap_pos[:] = mocap_pos
             mujoco.mj_forward(env.mj_model, data)
-            torso = marker_position(qpos[list(env.goal_qpos)], height=0.0)
-            camera.lookat[:] = torso
+            if camera_mode != "fixed":
+                camera.lookat[:] = marker_position(qpos[list(env.goal_qpos)], height=0.0)
             renderer.update_scene(data, camera)
             scene = renderer.scene
+            if recording.box is not None:
+                _draw_box_outline(scene, recording.box)
+            first = max(0, step - TRAIL_STEPS)
+            for past in range(first, step):
+                fade = (past - first + 1) / (step - first + 1)
+                _add_geom(scene, mujoco.mjtGeom.mjGEOM_SPHERE, [0.05, 0, 0], torsos[past], (*TRAIL_COLOUR, 0.8 * fade))
             for level, goal in enumerate(goals):
-                if scene.ngeom >= scene.maxgeom:
-                    break
-                mujoco.mjv_initGeom(
-                    scene.geoms[scene.ngeom], type=mujoco.mjtGeom.mjGEOM_SPHERE,
-                    size=np.array([0.08 * (level + 1), 0.0, 0.0]), pos=marker_position(goal),
-                    mat=np.eye(3).ravel(), rgba=np.array(LEVEL_COLOURS[level % len(LEVEL_COLOURS)]),
-                )
-                scene.ngeom += 1
+                _add_geom(scene, mujoco.mjtGeom.mjGEOM_SPHERE, [0.08 * (level + 1), 0, 0], marker_position(goal),
+                          LEVEL_COLOURS[level % len(LEVEL_COLOURS)])
             frames.append(renderer.render().copy())
     finally:
         renderer.close()
     return np.stack(frames)
 
 
-def write_gif(frames: np.ndarray, path: Path, fps: float) -> Path:
-    """Save frames as a looping GIF (Pillow, which matplotlib already brings)."""
+VIDEO_SUFFIXES = (".mp4", ".gif")
+
+
+def check_video(path: Path, width: int, height: int) -> None:
+    """Refuse a video this module cannot write, naming the field: a suffix other than .mp4 or
+    .gif, or an MP4 of odd size (H.264's yuv420p halves both)."""
+    suffix = Path(path).suffix.lower()
+    if suffix not in VIDEO_SUFFIXES:
+        raise ConfigError(f"out: a video file ends in one of {list(VIDEO_SUFFIXES)}; got {Path(path).name!r}")
+    if suffix == ".mp4" and (width % 2 or height % 2):
+        raise ConfigError(f"width and height: an MP4 needs even sizes; got {width}x{height}")
+
+
+def write_video(frames: np.ndarray, path: Path, fps: float) -> Path:
+    """Save frames as an H.264 MP4 (the ffmpeg that imageio-ffmpeg ships) or a GIF, by the
+    path's suffix; the GIF shares one palette that holds every marker colour, so no frame
+    loses them."""
+    path = Path(path)
+    check_video(path, frames.shape[2], frames.shape[1])
+    suffix = path.suffix.lower()
+    from mjx_emp.run.store import writing
+
+    with writing(path, chosen=True):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        (_write_mp4 if suffix == ".mp4" else _write_gif)(frames, path, fps)
+    return path
+
+
+def _write_mp4(frames: np.ndarray, path: Path, fps: float) -> None:
+    import imageio_ffmpeg
+
+    height, width = frames.shape[1:3]
+    writer = imageio_ffmpeg.write_frames(str(path), (width, height), fps=fps, quality=8, macro_block_size=2,
+                                         ffmpeg_log_level="error")
+    writer.send(None)  # start ffmpeg
+    try:
+        for frame in frames:
+            writer.send(np.ascontiguousarray(frame))
+    finally:
+        writer.close()
+
+
+def _write_gif(frames: np.ndarray, path: Path, fps: float) -> None:
     from PIL import Image
 
-    images = [Image.fromarray(frame) for frame in frames]
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    swatches = np.repeat(np.repeat(np.array(
+        [[[round(255 * c) for c in colour[:3]] for colour in (*LEVEL_COLOURS, TRAIL_COLOUR, BOX_COLOUR)]],
+        np.uint8), 16, axis=0), 16, axis=1)  # every marker colour, large enough to earn a palette entry
+    sample = frames[:: max(1, len(frames) // 16)].reshape(-1, frames.shape[2], 3)
+    canvas = np.zeros((sample.shape[0] + swatches.shape[0], max(sample.shape[1], swatches.shape[1]), 3), np.uint8)
+    canvas[: sample.shape[0], : sample.shape[1]] = sample
+    canvas[sample.shape[0]:, : swatches.shape[1]] = swatches
+    palette = Image.fromarray(canvas).quantize(colors=255, method=Image.Quantize.MEDIANCUT)
+    images = [Image.fromarray(frame).quantize(palette=palette, dither=Image.Dither.NONE) for frame in frames]
     images[0].save(path, save_all=True, append_images=images[1:], duration=int(1000 / fps), loop=0)
-    return path

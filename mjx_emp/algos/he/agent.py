@@ -30,6 +30,7 @@ from flax import struct
 from mjx_emp import gce
 from mjx_emp.algos.he.config import GcrlConfig, HEConfig, check_gcrl_config, check_train_config
 from mjx_emp.algos.he.networks import HENetworks
+from mjx_emp.checks import compile_identity
 from mjx_emp.counters import StepCounter
 from mjx_emp.envs.env import Env, make_env
 from mjx_emp.errors import ConfigError
@@ -173,21 +174,26 @@ def start_subset(buffer: ReplayBuffer, initial: jax.Array, starts: jax.Array | i
 class HEAgent:
     """Static side of phase 1 for one config: env, networks, optimisers, the rollout agent.
 
-    It is a static jit argument that hashes and compares by its config, so trainers of
-    equal configs share compiled programs. Drive it with :meth:`init` and :meth:`train_epoch`.
+    It is a static jit argument that hashes and compares by its config (all but the epoch
+    count, :func:`~mjx_emp.checks.compile_identity`), so trainers of equal configs share
+    compiled programs. Drive it with :meth:`init` and :meth:`train_epoch`.
     """
 
-    cfg: HEConfig
+    cfg: HEConfig = dataclasses.field(compare=False)
     shard_axes: ShardAxes = ()
     """The mapped axes this agent's shards run along when a split run trains (see
     :mod:`mjx_emp.shards`); empty for an agent on its own."""
+    identity: HEConfig = dataclasses.field(init=False, repr=False)
+    """What it compares and hashes by: ``cfg`` without its epoch count."""
     env: Env = dataclasses.field(init=False, compare=False, repr=False)
     nets: HENetworks = dataclasses.field(init=False, compare=False, repr=False)
     hierarchy: Hierarchy = dataclasses.field(init=False, compare=False, repr=False)
 
     def __post_init__(self):
         (check_gcrl_config if isinstance(self.cfg, GcrlConfig) else check_train_config)(self.cfg)
-        env = make_env(self.cfg.env, self.cfg.heading_frame, self.cfg.solver_iterations, self.cfg.integrator)
+        object.__setattr__(self, "identity", compile_identity(self.cfg))
+        env = make_env(self.cfg.env, self.cfg.heading_frame, self.cfg.solver_iterations, self.cfg.integrator,
+                       self.cfg.impl)
         object.__setattr__(self, "env", env)
         object.__setattr__(self, "nets", HENetworks(self.cfg, env))
         policies = tuple(

@@ -34,6 +34,9 @@ class HEConfig:
     integrator: str = "model"
     """Integrator of the physics: model (the file's; Euler for every domain), euler,
     implicitfast or rk4."""
+    impl: str = "jax"
+    """MJX backend: jax (MJX's own, on any device; deterministic) or warp (MuJoCo Warp, CUDA
+    GPUs only, needs the mujoco-warp package; not bit-for-bit deterministic)."""
     n: tuple[int, ...] = (10,)
     """Maximum number of actions per level (the paper's n), bottom level first."""
     sigma_gc: tuple[float, ...] = (0.2,)
@@ -153,7 +156,7 @@ def check_train_config(cfg: HEConfig, positive: tuple[str, ...] = _POSITIVE) -> 
     if cfg.heading_frame and DOMAINS[cfg.env].torso_quat is None:
         allowed = sorted(name for name, spec in DOMAINS.items() if spec.torso_quat is not None)
         raise ConfigError(f"heading_frame: {cfg.env!r} has no free torso; allowed only with env in {allowed}")
-    check_physics(cfg.solver_iterations, cfg.integrator)
+    check_physics(cfg.solver_iterations, cfg.integrator, cfg.impl)
     check_levels(cfg.n, cfg.eps)
     check_shards(cfg, SHARD_SPLIT)
     for name in _PER_LEVEL:

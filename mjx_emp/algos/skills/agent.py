@@ -22,15 +22,16 @@ import optax
 from flax import struct
 
 from mjx_emp.algos.skills import objectives as obj
-from mjx_emp.algos.skills.methods import METHODS, ModelContext, ModelInfo, SkillMethod
 from mjx_emp.algos.skills.config import (
     SkillConfig,
     check_skill_config,
 )
+from mjx_emp.algos.skills.methods import METHODS, ModelContext, ModelInfo, SkillMethod
+from mjx_emp.checks import compile_identity
 from mjx_emp.counters import StepCounter
 from mjx_emp.envs.env import Env, EnvState, make_env
 from mjx_emp.learners.common import all_finite
-from mjx_emp.learners.sac import SAC, SACBatch, SACLearner
+from mjx_emp.learners.sac import SAC, SACBatch, SACInfo, SACLearner
 from mjx_emp.metrics import epoch_header
 from mjx_emp.replay import ReplayBuffer, flatten_rows, replay_init, replay_insert, replay_sample
 from mjx_emp.rollout.flat import FlatState, flat_init, flat_rollout
@@ -83,7 +84,7 @@ class IterationStats:
 
     env_steps: jax.Array
     learned: jax.Array
-    sac: jax.Array
+    sac: SACInfo
     model_loss: jax.Array
     reward: jax.Array
     posterior_std: jax.Array
@@ -98,19 +99,23 @@ class IterationStats:
 
 @dataclasses.dataclass(frozen=True)
 class SkillAgent:
-    """Static side of one flat skill learner's config; hashes by the config (a jit argument)."""
+    """Static side of one flat skill learner's config; hashes by the config without its epoch
+    count (a jit argument, :func:`~mjx_emp.checks.compile_identity`)."""
 
-    cfg: SkillConfig
+    cfg: SkillConfig = dataclasses.field(compare=False)
     shard_axes: ShardAxes = ()
     """The mapped axes this agent's shards run along when a split run trains (see
     :mod:`mjx_emp.shards`); empty for an agent on its own."""
+    identity: SkillConfig = dataclasses.field(init=False, repr=False)
+    """What it compares and hashes by: ``cfg`` without its epoch count."""
     env: Env = dataclasses.field(init=False, compare=False, repr=False)
 
     def __post_init__(self):
         if type(self.cfg) not in METHODS:
             raise TypeError(f"cfg: a {type(self.cfg).__name__}; expected one of {[c.__name__ for c in METHODS]}")
         check_skill_config(self.cfg)
-        object.__setattr__(self, "env", make_env(self.cfg.env))
+        object.__setattr__(self, "identity", compile_identity(self.cfg))
+        object.__setattr__(self, "env", make_env(self.cfg.env, impl=self.cfg.impl))
 
     @property
     def skill_method(self) -> SkillMethod:
@@ -244,10 +249,10 @@ class SkillAgent:
         def learn(carry):
             carry, (sac_info, model_info, reward) = jax.lax.scan(
                 lambda c, k: self.learn_step(c, replay, k), carry, jax.random.split(learn_key, cfg.grad_steps))
-            return carry, sac_info.mean(0), jax.tree.map(lambda x: x.mean(0), model_info), reward.mean()
+            return carry, *jax.tree.map(lambda x: x.mean(0), (sac_info, model_info)), reward.mean()
 
         def wait(carry):
-            return carry, jnp.full(5, jnp.nan), ModelInfo.nan(), jnp.float32(jnp.nan)
+            return carry, SACInfo.nan(), ModelInfo.nan(), jnp.float32(jnp.nan)
 
         axes = self.shard_axes
         learned = shard_all(replay.size >= cfg.min_replay, axes)  # every shard learns from the same iteration on
@@ -331,8 +336,8 @@ class SkillAgent:
         header = epoch_header(state, float(s.env_steps.sum()), seconds)
         return {
             **header, "algorithm": self.method, "learned_iterations": int(s.learned.sum()),
-            "critic_loss": mean(s.sac[:, 0]), "actor_loss": mean(s.sac[:, 1]), "alpha": mean(s.sac[:, 3]),
-            "entropy": mean(s.sac[:, 4]), "model_loss": mean(s.model_loss), "reward": mean(s.reward),
+            "critic_loss": mean(s.sac.critic_loss), "actor_loss": mean(s.sac.actor_loss), "alpha": mean(s.sac.alpha),
+            "entropy": mean(s.sac.entropy), "model_loss": mean(s.model_loss), "reward": mean(s.reward),
             "posterior_std": mean(s.posterior_std), "dual_lambda": mean(s.dual_lambda),
             "constraint": mean(s.constraint), "episodes": int(s.episodes.sum()),
             "displacement": mean(np.where(s.episodes > 0, s.displacement, np.nan)),
@@ -343,7 +348,8 @@ class SkillAgent:
         """Why this epoch must not be kept (a non-finite loss or parameter), or None."""
         s = jax.tree.map(np.asarray, stats)
         learned = s.learned.astype(bool)
-        for name, values in (("critic loss", s.sac[:, 0]), ("actor loss", s.sac[:, 1]), ("model loss", s.model_loss)):
+        for name, values in (("critic loss", s.sac.critic_loss), ("actor loss", s.sac.actor_loss),
+                             ("model loss", s.model_loss)):
             if not np.isfinite(values[learned]).all():
                 return f"the {self.method} {name} is not finite"
         if not bool(all_finite((state.sac, state.model))):

@@ -13,7 +13,7 @@ from __future__ import annotations
 import dataclasses
 
 from mjx_emp.checks import check_capacity, check_counts, check_finite, check_learning, check_shards
-from mjx_emp.envs.registry import DOMAINS
+from mjx_emp.envs.registry import DOMAINS, check_physics
 from mjx_emp.errors import ConfigError
 
 
@@ -23,6 +23,8 @@ class SkillConfig:
 
     env: str = "point_mass"
     """Domain: point_mass, ant_field, ant_cage, half_cheetah_field or half_cheetah_cage."""
+    impl: str = "jax"
+    """MJX backend: jax (any device; deterministic) or warp (MuJoCo Warp, CUDA GPUs only)."""
     skill_dim: int = 2
     """Dimension d of the skill z."""
     n: int = 10
@@ -109,6 +111,7 @@ def check_skill_config(cfg: SkillConfig) -> None:
     """Raise ConfigError naming the first invalid field of ``cfg`` and what it allows."""
     if cfg.env not in DOMAINS:
         raise ConfigError(f"env: {cfg.env!r} is unknown; allowed values: {sorted(DOMAINS)}")
+    check_physics(0, "model", cfg.impl)
     check_counts(cfg, _POSITIVE)
     check_shards(cfg, SHARD_SPLIT)
     check_learning(cfg, _RATES, ())

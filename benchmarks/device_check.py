@@ -1,0 +1,161 @@
+"""One prepared check for a GPU machine: everything the paper-scale path needs measured in one
+command of under 8 minutes, written to JSON step by step (a step that fails is recorded and
+the next one runs).
+
+Steps, each on every MJX backend that can run here (``jax``; ``warp`` where mujoco-warp and a
+CUDA device are present):
+1. ``rollout``: raw batched ``mjx.step`` and the one-scan k = 1..3 rollout on the Ant at
+   B = 4096, 16384 and 32768 (``benchmarks/rollout.py``'s measurement);
+2. ``train``: compile seconds, epoch seconds and env steps/s of ``ant-field-small-k1``;
+3. ``seeds``: 1, 4 and 8 seeds of it in one vmapped program (``benchmarks/seeds.py``'s timing);
+4. ``memory``: the preflight's estimate (state and one epoch's working set) against the
+   device's memory and the peak it reports.
+
+``--dry-run`` runs every step at tiny sizes on the point mass (B = 8, 8 environments, 2
+seeds, ``point-mass-k1`` for the training steps) so that the script can be tested on a CPU
+in about a minute and cannot rot; its figures mean nothing. Steps not started when
+``--budget-s`` has passed are recorded as skipped. See docs/gpu.md.
+
+    python benchmarks/device_check.py --out benchmarks/results/device_check_gpu.json
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import platform
+import sys
+import time
+import traceback
+from pathlib import Path
+
+import jax
+import tyro
+
+sys.path.insert(0, str(Path(__file__).parent))  # the sibling benchmarks whose measurements are reused
+
+import rollout as rollout_benchmark  # noqa: E402
+import seeds as seeds_benchmark  # noqa: E402
+
+from mjx_emp.algos.registry import all_presets, make_agent  # noqa: E402
+from mjx_emp.envs.env import check_backend, make_env  # noqa: E402
+from mjx_emp.errors import ConfigError  # noqa: E402
+from mjx_emp.run.preflight import available_bytes, state_bytes, working_set_bytes  # noqa: E402
+from mjx_emp.run.seeds import SeedGroup  # noqa: E402
+
+PRESET = "ant-field-small-k1"
+
+
+@dataclasses.dataclass
+class Args:
+    """Every measurement a GPU session needs, in one command."""
+
+    dry_run: bool = False
+    """Tiny sizes on any device: checks that every step runs, measures nothing."""
+    batch_sizes: tuple[int, ...] = (4096, 16384, 32768)
+    seed_counts: tuple[int, ...] = (1, 4, 8)
+    impls: tuple[str, ...] = ("jax", "warp")
+    budget_s: float = 420.0
+    """Start no new step after this many seconds (one command may run 10 minutes)."""
+    out: str = ""
+    """JSON output; empty means benchmarks/results/device_check_<backend>.json."""
+
+
+def sizes(args: Args) -> dict:
+    """What each step runs at: the real sizes, or tiny ones for ``--dry-run``."""
+    if args.dry_run:
+        return {"env": "point_mass", "preset": "point-mass-k1", "batch_sizes": (8,), "levels": (1,),
+                "rollout_steps": 4, "repeats": 1, "seed_counts": (2,),
+                "train": dict(num_envs=8, batch_size=16, gc_iterations=1, gc_grad_steps=2, gs_iterations=1,
+                              gs_grad_steps=1, replay_capacity=512, gs_replay_capacity=64, start_capacity=64,
+                              start_chain=2, hidden=(16,))}
+    return {"env": "ant_field", "preset": PRESET, "batch_sizes": args.batch_sizes, "levels": (1, 2, 3),
+            "rollout_steps": 40, "repeats": 3, "seed_counts": args.seed_counts, "train": {}}
+
+
+def backend_problem(impl: str) -> str | None:
+    """Why ``impl`` cannot run in this process, or None."""
+    try:
+        check_backend(impl)
+    except ConfigError as err:
+        return str(err)
+    return None
+
+
+def rollout_step(impl: str, plan: dict) -> list[dict]:
+    env = make_env(plan["env"], impl=impl)
+    options = rollout_benchmark.Args(levels=plan["levels"], repeats=plan["repeats"])
+    return [{"impl": impl, **row} for batch in plan["batch_sizes"]
+            for row in rollout_benchmark.bench_group(env, batch, plan["rollout_steps"], options)]
+
+
+def train_config(impl: str, plan: dict):
+    return dataclasses.replace(all_presets()[plan["preset"]][1], impl=impl, **plan["train"])
+
+
+def train_step(impl: str, plan: dict) -> dict:
+    cfg = train_config(impl, plan)
+    agent = make_agent(cfg)
+    timing = seeds_benchmark.time_program(agent.init, agent.train_epoch, plan["repeats"])
+    steps = float(agent.metrics(*agent.train_epoch(agent.init()), 1.0)["env_steps"])  # one epoch's
+    return {"impl": impl, "preset": plan["preset"], "num_envs": cfg.num_envs, **timing,
+            "env_steps_per_epoch": steps, "env_steps_per_s": steps / timing["epoch_s"]}
+
+
+def seeds_step(impl: str, plan: dict) -> list[dict]:
+    agent = make_agent(train_config(impl, plan))
+    rows = []
+    for count in plan["seed_counts"]:
+        group = SeedGroup(agent, tuple(range(count)))
+        rows.append({"impl": impl, "seeds": count,
+                     **seeds_benchmark.time_program(group.init, group.train_epoch, plan["repeats"])})
+    return rows
+
+
+def memory_step(impl: str, plan: dict) -> dict:
+    cfg = train_config(impl, plan)
+    agent = make_agent(cfg)
+    free, where = available_bytes()
+    device = jax.local_devices()[0]
+    stats = device.memory_stats() if hasattr(device, "memory_stats") else None
+    return {"impl": impl, "state_bytes": state_bytes(agent), "working_set_bytes": working_set_bytes(cfg, agent.env.obs_size),
+            "free_bytes": free, "where": where, "device_memory_stats": dict(stats or {})}
+
+
+STEPS = {"rollout": rollout_step, "train": train_step, "seeds": seeds_step, "memory": memory_step}
+
+
+def main(args: Args) -> dict:
+    out = Path(args.out or f"benchmarks/results/device_check_{jax.default_backend()}.json")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    plan = sizes(args)
+    report = {"backend": jax.default_backend(), "devices": [str(d) for d in jax.devices()],
+              "machine": platform.processor() or platform.machine(), "dry_run": args.dry_run, "steps": []}
+    start = time.perf_counter()
+    for impl in args.impls:
+        problem = backend_problem(impl)
+        for name, step in STEPS.items():
+            entry = {"step": name, "impl": impl}
+            if problem:
+                entry["skipped"] = problem
+            elif time.perf_counter() - start > args.budget_s:
+                entry["skipped"] = f"time budget of {args.budget_s:.0f} s spent"
+            else:
+                began = time.perf_counter()
+                try:
+                    entry["result"] = step(impl, plan)
+                except Exception as err:  # recorded, and the next step still runs
+                    entry["error"] = f"{type(err).__name__}: {err}"
+                    entry["traceback"] = traceback.format_exc(limit=8)
+                entry["seconds"] = time.perf_counter() - began
+            report["steps"].append(entry)
+            print(json.dumps({k: v for k, v in entry.items() if k != "traceback"})[:400], flush=True)
+            out.write_text(json.dumps(report, indent=1))
+    report["total_s"] = time.perf_counter() - start
+    out.write_text(json.dumps(report, indent=1))
+    print(f"wrote {out} ({report['total_s']:.0f} s)")
+    return report
+
+
+if __name__ == "__main__":
+    main(tyro.cli(Args))

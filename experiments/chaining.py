@@ -1,0 +1,67 @@
+"""The chaining diagnostic: does phase 2 fall short of its skills, or do the skills fall short of the task?
+
+For each given phase-1 run: trains phase 2 on its skills with the domain's preset (as `mjx-emp
+phase2 RUN_DIR` does; resumed or kept where it is there), then evaluates on the same 400 goals
+of the phase-2 region three policies on top of the frozen skills: the learned phase-2 policy,
+the scripted ``aimed`` policy (each subgoal straight at the goal, clipped into the top goal
+space at s) and ``random`` subgoals in that box. The aimed figure bounds what the skills do
+without learning above them; a learned policy far behind it says phase 2 learns too little.
+Rows (run, preset, phase-1 env steps, top box, the three policies' mean minimum distance and
+success) are merged into ``--out``.
+
+    python experiments/chaining.py --runs runs/ant-s0 runs/ant-s1
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import jax
+import tyro
+from baselines import merge_row, train_phase2
+
+from mjx_emp.metrics import PHASE2_DIAGNOSTICS
+from mjx_emp.run import jobs, store
+from mjx_emp.run.evaluate import phase2_figures
+
+
+@dataclasses.dataclass
+class Args:
+    """Phase-1 runs whose skills are chained toward goals by learned and scripted policies."""
+
+    runs: tuple[str, ...] = ()
+    name: str = ""
+    """The rows' ``variant`` (e.g. the preset the runs were trained with); empty: each run's directory name."""
+    episodes: int = 400
+    train: bool = True
+    """Train (or resume) phase 2 first; False evaluates the phase-2 directories as they are."""
+    out: str = "benchmarks/results/chaining_cpu.json"
+
+
+def chaining_row(run_dir: Path, name: str, episodes: int) -> dict:
+    """One run's row: its top box and the phase-2 figures of every policy on the same goals."""
+    agent, epoch, state = jobs.load_run(run_dir)
+    top = agent.goal_spaces(state)[-1]
+    figures = phase2_figures(*jobs.load_phase2(run_dir / store.PHASE2_SUBDIR), jax.random.key(7), episodes)
+    policies = {"learned": figures, **{p: figures[p] for p in PHASE2_DIAGNOSTICS if p in figures}}
+    return {"variant": name or run_dir.name, "run_dir": str(run_dir), "env": agent.cfg.env, "k": agent.cfg.k,
+            "seed": agent.cfg.seed, "phase1_epoch": epoch, "phase1_env_steps": float(state.env_steps.value()),
+            "top_volume": top["volume"], "phase2_epoch": figures["epoch"], "region": figures["region"],
+            "eps": figures["eps"], "attempts": figures["n"],
+            **{f"{p}_{k}": v[k] for p, v in policies.items() for k in ("min_distance", "success")}}
+
+
+def main(args: Args) -> None:
+    if not args.runs:
+        raise SystemExit("runs: give at least one phase-1 run directory")
+    for run in map(Path, args.runs):
+        if args.train:
+            train_phase2(run)
+        row = chaining_row(run, args.name, args.episodes)
+        print(row, flush=True)
+        merge_row(Path(args.out), row, key=("variant", "run_dir"))
+
+
+if __name__ == "__main__":
+    main(tyro.cli(Args))
