@@ -125,16 +125,13 @@ def plot(exp: PlotExperiment) -> None:
     """Draw one run's pictures into RUN_DIR/plots/, or compare several runs in ``--out``; print the paths."""
     from mjx_emp.viz.plots import plot_any_run, plot_runs
 
-    if not exp.run_dirs:
-        raise ConfigError("run_dirs: give at least one run directory, e.g. `mjx-emp plot runs/pm1`")
+    check_distinct_runs(exp.run_dirs, "plot")
     for run_dir in map(Path, exp.run_dirs):
         if not (run_dir / store.METRICS_FILE).exists():
             raise ConfigError(f"run_dir: {str(run_dir)!r} has no {store.METRICS_FILE}; is it a run directory?")
         if not store.read_metrics(run_dir):
             raise ConfigError(f"run_dir: {str(run_dir)!r} has no finished epoch to plot; plot it once an epoch has "
                               f"ended")
-    if len(set(Path(d).resolve() for d in exp.run_dirs)) < len(exp.run_dirs):
-        raise ConfigError(f"run_dirs: each run counts once (seeds are averaged); got {list(exp.run_dirs)}")
     print(f"plotting {', '.join(exp.run_dirs)} ...", flush=True)
     paths = plot_any_run(Path(exp.run_dirs[0])) if len(exp.run_dirs) == 1 else \
         plot_runs([Path(d) for d in exp.run_dirs], Path(exp.out or "plots"))
@@ -175,17 +172,23 @@ def render(exp: RenderExperiment) -> None:
     print(f"{out}: {len(frames)} frames of {exp.width}x{exp.height} (epoch {epoch})")
 
 
+def check_distinct_runs(run_dirs: tuple[str, ...], command: str) -> None:
+    """At least one run directory, and none given twice: runs are aggregated as seeds, and the
+    same run twice would count as two (``command`` names the CLI command in the message)."""
+    if not run_dirs:
+        raise ConfigError(f"run_dirs: give at least one run directory, e.g. `mjx-emp {command} runs/pm1`")
+    resolved = [Path(d).resolve() for d in run_dirs]
+    twice = sorted({d for d, r in zip(run_dirs, resolved) if resolved.count(r) > 1})
+    if twice:
+        raise ConfigError(f"run_dirs: each run counts once (they are aggregated as seeds); given twice: {twice}")
+
+
 def check_eval(exp: EvalExperiment) -> None:
     """Refuse an eval request before anything loads: episodes, and a run given twice (it
     would count as two seeds)."""
     if exp.episodes < 1:
         raise ConfigError(f"episodes: must be >= 1; got {exp.episodes}")
-    if not exp.run_dirs:
-        raise ConfigError("run_dirs: give at least one run directory, e.g. `mjx-emp eval runs/pm1`")
-    resolved = [Path(d).resolve() for d in exp.run_dirs]
-    twice = sorted({d for d, r in zip(exp.run_dirs, resolved) if resolved.count(r) > 1})
-    if twice:
-        raise ConfigError(f"run_dirs: each run counts once (they are aggregated as seeds); given twice: {twice}")
+    check_distinct_runs(exp.run_dirs, "eval")
 
 
 def phase2_report(run_dir: Path, key, episodes: int, phase2_figures) -> dict | None:
