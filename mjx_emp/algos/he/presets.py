@@ -74,6 +74,7 @@ ANT_FIELD_CPU_K1_HER_LN = dataclasses.replace(ANT_FIELD_CPU_K1, her=0.5, critic_
 # (docs/presets.md#the-accurate-physics-presets).
 ANT_FIELD_CPU_K1_4ITER = dataclasses.replace(ANT_FIELD_CPU_K1, solver_iterations=4)
 ANT_FIELD_CPU_K2_4ITER = dataclasses.replace(ANT_FIELD_CPU_K2, solver_iterations=4)
+HALF_CHEETAH_CPU_K1_4ITER = dataclasses.replace(HALF_CHEETAH_CPU_K1, solver_iterations=4)
 
 PRESETS: dict[str, tuple[str, HEConfig]] = {
     "point-mass-k1": ("CPU default: point mass, one level of n=10 skills", POINT_MASS_K1),
@@ -88,6 +89,8 @@ PRESETS: dict[str, tuple[str, HEConfig]] = {
                                ANT_FIELD_CPU_K1_4ITER),
     "ant-field-cpu-k2-4iter": ("CPU: ant-field-cpu-k2 with 4 solver iterations (accurate contacts)",
                                ANT_FIELD_CPU_K2_4ITER),
+    "half-cheetah-cpu-k1-4iter": ("CPU: half-cheetah-cpu-k1 with 4 solver iterations (accurate contacts)",
+                                  HALF_CHEETAH_CPU_K1_4ITER),
     "ant-field-cpu-k1-her-ln": ("CPU: ant-field-cpu-k1 with hindsight goals and a LayerNorm critic, 120 epochs",
                                 ANT_FIELD_CPU_K1_HER_LN),
     "ant-field-small-k1": ("Table 1: Ant Field Small, k=1",
