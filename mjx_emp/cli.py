@@ -6,6 +6,7 @@ Bad input exits with code 2 and a message naming the field and what it allows.
 from __future__ import annotations
 
 import difflib
+import functools
 import json
 import math
 import os
@@ -148,7 +149,7 @@ def render(exp: RenderExperiment) -> None:
     for name in ("fps", "distance"):
         if not (math.isfinite(getattr(exp, name)) and getattr(exp, name) > 0):
             raise ConfigError(f"{name}: must be a finite number > 0; got {getattr(exp, name)}")
-    from mjx_emp.viz.render import check_video, record_rollout, render_frames, skill_recording, write_video
+    from mjx_emp.viz.render import check_video, record_trained, render_frames, write_video
 
     out = Path(exp.out or Path(exp.run_dir) / ("phase2.mp4" if exp.phase2 else "skills.mp4"))
     check_video(out, exp.width, exp.height)  # before the run is loaded
@@ -160,12 +161,11 @@ def render(exp: RenderExperiment) -> None:
             raise ConfigError(f"phase2: {str(phase2_dir)!r} holds no phase-2 run; train one with "
                               f"`mjx-emp phase2 {exp.run_dir}`")
         trainer, epoch, state = jobs.load_phase2(phase2_dir)
-        print(f"recording {exp.steps} steps of the phase-2 policy (epoch {epoch}) ...", flush=True)
-        recording = record_rollout(trainer.greedy_episodes(state), jax.random.key(exp.seed), exp.steps)
     else:
         trainer, epoch, state = jobs.load_run(Path(exp.run_dir))
-        print(f"recording {exp.steps} steps of the greedy skills (epoch {epoch}) ...", flush=True)
-        recording = skill_recording(trainer, state, jax.random.key(exp.seed), exp.steps)
+    what = "the phase-2 policy" if exp.phase2 else "the greedy skills"
+    print(f"recording {exp.steps} steps of {what} (epoch {epoch}) ...", flush=True)
+    recording = record_trained(trainer, state, exp.phase2, jax.random.key(exp.seed), exp.steps)
     print(f"rendering {len(recording.qpos)} frames of {exp.width}x{exp.height} ...", flush=True)
     frames = render_frames(trainer.env, recording, exp.width, exp.height, exp.camera, exp.distance)
     out = write_video(frames, out, exp.fps)
@@ -396,12 +396,19 @@ def phase2_commands() -> Any:
     return Union[tuple(commands)]  # noqa: UP007
 
 
+def film_for_trackers(trainer, state, run_dir: Path, steps: int):
+    """The video a tracked run hands its trackers when it ends (:func:`mjx_emp.viz.render.film_for_trackers`)."""
+    from mjx_emp.viz.render import film_for_trackers as film
+
+    return film(trainer, state, run_dir, steps)
+
+
 COMMANDS: dict[str, tuple[Any, Any, str]] = {
-    "train": (preset_commands, jobs.train, "Train a new run of a preset; every config field is a flag "
+    "train": (preset_commands, functools.partial(jobs.train, film=film_for_trackers), "Train a new run of a preset; every config field is a flag "
               "(`train --resume RUN_DIR` is `resume RUN_DIR`)."),
-    "resume": (lambda: ResumeExperiment, jobs.resume, "Continue a run or phase-2 directory from its newest good "
+    "resume": (lambda: ResumeExperiment, functools.partial(jobs.resume, film=film_for_trackers), "Continue a run or phase-2 directory from its newest good "
                "checkpoint, bit for bit."),
-    "phase2": (phase2_commands, jobs.train_phase2, "Phase 2: reach goals of a region with a run's skills as actions "
+    "phase2": (phase2_commands, functools.partial(jobs.train_phase2, film=film_for_trackers), "Phase 2: reach goals of a region with a run's skills as actions "
                "(`phase2 RUN_DIR` picks the run's own preset)."),
     "presets": (lambda: PresetsExperiment, list_presets, "List every phase-1 and phase-2 preset."),
     "eval": (lambda: EvalExperiment, evaluate, "Figures of runs' newest checkpoints (goal spaces, success, "
@@ -487,11 +494,16 @@ def main(argv: list[str] | None = None) -> None:
     argv = use_compile_cache(sys.argv[1:] if argv is None else list(argv))
 
     def parse_and_run(args: list[str]) -> None:
+        command, exp = parse(canonical_args(args))  # imports no mujoco
+        tracking = getattr(exp, "tracking", None)
         if args[:1] == ["render"]:
             from mjx_emp.viz.render import configure_headless_gl
 
             configure_headless_gl()  # before anything imports mujoco
-        command, exp = parse(canonical_args(args))
+        elif tracking is not None and tracking.on() and tracking.video_steps:
+            from mjx_emp.viz.render import prefer_headless_gl
+
+            prefer_headless_gl()  # the trackers' video at the end
         command(exp)
 
     main_guarded(parse_and_run, argv)

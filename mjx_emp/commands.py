@@ -37,6 +37,14 @@ class Tracking:
     """W&B run name; empty: the run directory's name."""
     wandb_mode: Literal["auto", "online", "offline"] = "auto"
     """auto: online with WANDB_API_KEY set, offline otherwise."""
+    video_steps: int = 200
+    """When training ends, film this many steps of the trained run (640x480, as `mjx-emp render`
+    does, into RUN_DIR) and log the video to the trackers; 0: no video. Without offscreen GL
+    (EGL or OSMesa) the run ends with a note instead of the video."""
+
+    def on(self) -> bool:
+        """Whether any tracker is asked for."""
+        return self.tensorboard or self.wandb
 
 
 @dataclasses.dataclass(frozen=True)
@@ -214,12 +222,18 @@ def _check_devices(num_devices: int) -> None:
         raise ConfigError(f"num_devices: must be >= 0 (0: every local device); got {num_devices}")
 
 
+def _check_tracking(tracking: Tracking) -> None:
+    if tracking.video_steps < 0:
+        raise ConfigError(f"video_steps: must be >= 0 (0: no video); got {tracking.video_steps}")
+
+
 def check_train(exp: TrainExperiment) -> None:
     """Refuse a training request before anything is built or written: its config (by the
-    algorithm's registry entry), ``keep_checkpoints``, ``num_devices`` and ``seeds``."""
+    algorithm's registry entry), ``keep_checkpoints``, ``num_devices``, tracking and ``seeds``."""
     algorithm_of(exp.config).check(exp.config)
     _check_keep(exp.keep_checkpoints)
     _check_devices(exp.num_devices)
+    _check_tracking(exp.tracking)
     if not exp.seeds:
         return
     if len(set(exp.seeds)) != len(exp.seeds) or any(seed < 0 for seed in exp.seeds):
@@ -227,7 +241,7 @@ def check_train(exp: TrainExperiment) -> None:
     if exp.config.shards > 1 or exp.num_devices > 1:
         raise ConfigError(f"seeds: a seed group trains on one device, unsplit; got shards={exp.config.shards}, "
                           f"num_devices={exp.num_devices}")
-    if exp.tracking.tensorboard or exp.tracking.wandb:
+    if exp.tracking.on():
         raise ConfigError("seeds: tracking follows one run; train the seeds one by one with --tensorboard or --wandb")
 
 
@@ -236,6 +250,7 @@ def check_resume(exp: ResumeExperiment) -> None:
     such as an ``epochs`` below its newest checkpoint, is checked once it is read)."""
     _check_keep(exp.keep_checkpoints)
     _check_devices(exp.num_devices)
+    _check_tracking(exp.tracking)
     if exp.epochs is not None and exp.epochs < 1:
         raise ConfigError(f"epochs: must be >= 1; got {exp.epochs}")
 
@@ -245,5 +260,6 @@ def check_phase2(exp: Phase2Experiment) -> None:
     and a missing ``run_dir``."""
     check_phase2_config(exp.config)
     _check_keep(exp.keep_checkpoints)
+    _check_tracking(exp.tracking)
     if not exp.run_dir:
         raise ConfigError("run_dir: give the phase-1 run directory, e.g. `mjx-emp phase2 runs/pm1`")

@@ -242,7 +242,7 @@ def straight_run(tmp_path_factory):
     return straight
 
 
-@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT])
+@pytest.mark.parametrize("signum", [signal.SIGTERM, pytest.param(signal.SIGINT, marks=pytest.mark.slow)])  # one handler
 def test_sigterm_or_sigint_stops_after_the_write_names_the_checkpoint_and_resumes_bitwise(straight_run, tmp_path,
                                                                                             signum):
     stopped = tmp_path / "stopped"

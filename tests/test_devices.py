@@ -12,6 +12,7 @@ import textwrap
 
 import jax
 import numpy as np
+import pytest
 from tiny import TINY1, mjx_emp
 
 from mjx_emp.errors import ConfigError
@@ -66,7 +67,8 @@ FORCED_DEVICES = textwrap.dedent("""
 
 
 def forced_cpu_devices(count: int) -> dict[str, str]:
-    return {**os.environ, "XLA_FLAGS": f"--xla_force_host_platform_device_count={count}"}
+    flags = f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count={count}".strip()
+    return {**os.environ, "XLA_FLAGS": flags}
 
 
 def test_one_epoch_on_one_device_and_on_four_gives_the_same_parameters():
@@ -78,6 +80,7 @@ def test_one_epoch_on_one_device_and_on_four_gives_the_same_parameters():
     assert report["max_difference"] < 1e-4, report
 
 
+@pytest.mark.slow  # the split itself: test_one_epoch_on_one_device_and_on_four_gives_the_same_parameters
 def test_cli_trains_on_two_devices_and_resumes_on_one(tmp_path):
     run_dir = tmp_path / "split"
     small = ["--num-envs", "8", "--hidden", "16", "--batch-size", "16", "--gc-iterations", "2", "--gc-grad-steps",
@@ -104,6 +107,7 @@ def free_port() -> int:
         return probe.getsockname()[1]
 
 
+@pytest.mark.slow  # two processes compiling side by side: a minute and a half on two cores
 def test_two_processes_train_one_split_run_and_the_lead_writes_it(tmp_path):
     """jax.distributed on localhost: each process holds one shard on its CPU device; process 0
     writes config, metrics and checkpoints (the whole state gathered to it)."""

@@ -137,21 +137,6 @@ def test_half_cheetah_cage_wall_blocks_until_button_opens_it():
     assert float(env.observe(state)[-1]) == 0.0
 
 
-@pytest.mark.parametrize("name", ["ant_cage", "half_cheetah_cage"])
-def test_button_opens_cage(name):
-    env = make_env(name)
-    button = jnp.asarray(env.cage.button_center)
-    state = env.reset_to(jax.random.key(0), button)
-    assert not bool(env.cage_open(state))
-    state = jax.jit(env.step)(state, jnp.zeros(env.action_size))
-    assert bool(env.cage_open(state))
-    assert float(env.observe(state)[-1]) == 1.0
-    walls = np.asarray(state.data.mocap_pos)[list(env.cage.wall_mocap_ids)]
-    assert np.all(np.linalg.norm(walls, axis=-1) > 1000.0)
-    # a new episode closes the cage again
-    assert not bool(env.cage_open(env.reset(jax.random.key(1))))
-
-
 def turned_world(env, obs: np.ndarray, goal: np.ndarray, angle: float) -> tuple[np.ndarray, np.ndarray]:
     """The same Ant state and goal with the whole world turned by ``angle`` about z (MuJoCo C math)."""
     turn = np.array([np.cos(angle / 2), 0.0, 0.0, np.sin(angle / 2)])
@@ -195,14 +180,19 @@ def test_heading_frame_needs_a_free_torso():
 
 
 @pytest.mark.parametrize("name", ["ant_cage", "half_cheetah_cage"])
-def test_the_cage_latch_ignores_presses_outside_the_button_and_stays_open_once_opened(name):
+def test_the_button_opens_the_cage_and_the_latch_ignores_presses_outside_it_and_stays_open(name):
     env = make_env(name)
     step = jax.jit(env.step)
     center, half = np.asarray(env.cage.button_center), np.asarray(env.cage.button_half_size)
     outside = env.reset_to(jax.random.key(0), jnp.asarray(center - half - 0.3))  # just short of every edge
     assert not bool(env.cage_open(step(outside, jnp.zeros(env.action_size))))
-    opened = step(env.reset_to(jax.random.key(0), jnp.asarray(center)), jnp.zeros(env.action_size))
-    assert bool(env.cage_open(opened))
+    on_button = env.reset_to(jax.random.key(0), jnp.asarray(center))
+    assert not bool(env.cage_open(on_button))  # closed until a step finds the torso on the button
+    opened = step(on_button, jnp.zeros(env.action_size))
+    assert bool(env.cage_open(opened)) and float(env.observe(opened)[-1]) == 1.0
+    walls = np.asarray(opened.data.mocap_pos)[list(env.cage.wall_mocap_ids)]
+    assert np.all(np.linalg.norm(walls, axis=-1) > 1000.0)  # the walls are moved out of the way
+    assert not bool(env.cage_open(env.reset(jax.random.key(1))))  # a new episode closes the cage again
     # carried far from the button (the latch is all that remembers the press), it stays open
     far = opened.data.qpos.at[jnp.asarray(env.goal_qpos)].set(jnp.asarray(center + 10 * half + 5.0))
     moved = opened.replace(data=opened.data.replace(qpos=far))

@@ -42,7 +42,8 @@ def assert_same_metrics(mine: list[dict], theirs: list[dict]) -> None:
             assert value == flat_theirs[path], path
 
 
-@pytest.mark.parametrize("config", [dataclasses.replace(TINY1, epochs=2), tiny("metra")], ids=["he", "metra"])
+@pytest.mark.parametrize("config", [pytest.param(dataclasses.replace(TINY1, epochs=2), id="he"),
+                                    pytest.param(tiny("metra"), id="metra", marks=pytest.mark.slow)])
 def test_seeds_in_one_program_match_separate_runs_and_each_resumes_alone(config, tmp_path):
     jobs.train(TrainExperiment(config=config, run_dir=str(tmp_path / "group"), seeds=(4, 9)))
     for seed in (4, 9):

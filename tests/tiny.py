@@ -64,6 +64,6 @@ def mjx_emp(*args: str) -> list[str]:
     return [sys.executable, "-m", "mjx_emp.cli", *args]
 
 
-def run_cli(*args: str) -> subprocess.CompletedProcess:
-    """Run ``mjx-emp ARGS`` to completion, capturing its output."""
-    return subprocess.run(mjx_emp(*args), capture_output=True, text=True, timeout=600)
+def run_cli(*args: str, env: dict[str, str] | None = None) -> subprocess.CompletedProcess:
+    """Run ``mjx-emp ARGS`` to completion (in ``env``, else this process's environment), capturing its output."""
+    return subprocess.run(mjx_emp(*args), capture_output=True, text=True, timeout=600, env=env)

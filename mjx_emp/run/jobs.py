@@ -8,6 +8,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import json
+import sys
 from collections.abc import Callable
 from pathlib import Path
 
@@ -24,10 +25,10 @@ from mjx_emp.commands import (
     check_resume,
     check_train,
 )
-from mjx_emp.errors import ConfigError
+from mjx_emp.errors import ConfigError, RenderError
 from mjx_emp.phase2.config import Phase2Config
 from mjx_emp.run.loop import train_to_the_end
-from mjx_emp.run.tracking import open_trackers
+from mjx_emp.run.tracking import Film, Trackers, open_trackers
 from mjx_emp.run.store import (
     CONFIG_FILE,
     METRICS_FILE,
@@ -46,17 +47,37 @@ from mjx_emp.run.store import (
 
 
 def _to_the_end(trainer, state, checkpoints, run_dir: Path, tracking: Tracking,
-                on_epoch: Callable[[dict], None] | None = None):
+                on_epoch: Callable[[dict], None] | None = None, film: Film | None = None):
     """Train to the config's epoch count, each epoch's metrics also handed to the trackers that
-    ``tracking`` asks for and to ``on_epoch``."""
-    with open_trackers(tracking, run_dir, config_json(trainer.cfg)) as track:
-        report = [call for call in (track, on_epoch) if call is not None]
-        return train_to_the_end(trainer, state, checkpoints, run_dir,
-                                (lambda metrics: [call(metrics) for call in report]) if report else None)
+    ``tracking`` asks for and to ``on_epoch``; at the end, the trackers get ``film``'s video."""
+    with open_trackers(tracking, run_dir, config_json(trainer.cfg)) as trackers:
+        report = [call for call in (trackers and trackers.log, on_epoch) if call is not None]
+        state = train_to_the_end(trainer, state, checkpoints, run_dir,
+                                 (lambda metrics: [call(metrics) for call in report]) if report else None)
+        if trackers is not None and film is not None and tracking.video_steps:
+            _film_for_trackers(trackers, film, trainer, state, run_dir, tracking.video_steps)
+        return state
+
+
+def _film_for_trackers(trackers: Trackers, film: Film, trainer, state, run_dir: Path, steps: int) -> None:
+    """Hand the trackers a video of the trained run (the lead process films); without offscreen
+    GL the run still ends as trained, with a note on stderr."""
+    from mjx_emp.run.hosts import is_lead
+
+    if not is_lead():
+        return
+    print(f"filming {steps} steps of the trained run for the trackers ...", flush=True)
+    try:
+        video = film(trainer, state, run_dir, steps)
+    except RenderError as err:
+        print(f"mjx-emp: no video for the trackers: {err}", file=sys.stderr, flush=True)
+        return
+    trackers.log_video(video)
+    print(f"{video.path}: logged to the trackers", flush=True)
 
 
 def _train_new(trainer, state, run_dir: Path, keep_checkpoints: int, tracking: Tracking,
-               on_epoch: Callable[[dict], None] | None = None):
+               on_epoch: Callable[[dict], None] | None = None, film: Film | None = None):
     """Write the config, checkpoint ``state`` as epoch 0, and train to the end (with several
     hosts, the lead writes)."""
     from mjx_emp.run.checkpoint import Checkpoints
@@ -66,7 +87,7 @@ def _train_new(trainer, state, run_dir: Path, keep_checkpoints: int, tracking: T
         write_config(run_dir, trainer.cfg)
     checkpoints = Checkpoints(run_dir, keep_checkpoints)
     checkpoints.save(0, gather_to_host(state), trainer.cfg)
-    return _to_the_end(trainer, state, checkpoints, run_dir, tracking, on_epoch)
+    return _to_the_end(trainer, state, checkpoints, run_dir, tracking, on_epoch, film)
 
 
 def training_program(cfg, num_devices: int = 0):
@@ -93,10 +114,11 @@ def split_for_devices(cfg, num_devices: int):
     return dataclasses.replace(cfg, shards=num_devices) if num_devices > 1 else cfg
 
 
-def train(exp: TrainExperiment, on_epoch: Callable[[dict], None] | None = None):
+def train(exp: TrainExperiment, on_epoch: Callable[[dict], None] | None = None, film: Film | None = None):
     """Train a new run of the config's algorithm (with ``exp.seeds``, one run per seed under one
     vmap: :mod:`mjx_emp.run.seeds`; split over devices per ``exp.num_devices``: :mod:`mjx_emp.run.devices`);
-    returns the final state. ``on_epoch`` (one run, not a seed group) sees each epoch's metrics."""
+    returns the final state. ``on_epoch`` (one run, not a seed group) sees each epoch's metrics;
+    ``film`` makes the video the trackers get at the end (no video without it)."""
     from mjx_emp.run.hosts import join_hosts, wait_for_all
 
     check_train(exp)
@@ -123,7 +145,7 @@ def train(exp: TrainExperiment, on_epoch: Callable[[dict], None] | None = None):
     with run_lock(run_dir, "run_dir"):
         if cfg.shards > 1:
             print(f"split into {cfg.shards} shards on {trainer.num_devices} device(s)", flush=True)
-        return _train_new(trainer, trainer.init(), run_dir, exp.keep_checkpoints, exp.tracking, on_epoch)
+        return _train_new(trainer, trainer.init(), run_dir, exp.keep_checkpoints, exp.tracking, on_epoch, film)
 
 
 def check_memory(program) -> None:
@@ -187,7 +209,7 @@ def load_program(run_dir: Path, fallback: bool = False, epochs: int | None = Non
     return program, epoch, (program.place(state) if hasattr(program, "place") else state)
 
 
-def _resume(exp: ResumeExperiment, load: Callable, start_over: Callable):
+def _resume(exp: ResumeExperiment, load: Callable, start_over: Callable, film: Film | None = None):
     """Continue a run directory from its newest good checkpoint (``load`` restores it); one that
     a kill stopped before its first checkpoint starts over with what ``start_over`` builds."""
     check_resume(exp)
@@ -200,7 +222,7 @@ def _resume(exp: ResumeExperiment, load: Callable, start_over: Callable):
             print(f"{run_dir} was stopped before its first checkpoint; starting it over from its {CONFIG_FILE}",
                   flush=True)
             keep_metrics_through(run_dir / METRICS_FILE, 0)
-            return _train_new(trainer, trainer.init(), run_dir, exp.keep_checkpoints, exp.tracking)
+            return _train_new(trainer, trainer.init(), run_dir, exp.keep_checkpoints, exp.tracking, film=film)
         trainer, epoch, state = load(run_dir, exp.fallback, exp.epochs, field="resume")
         if trainer.cfg.epochs < epoch:  # before anything is rewritten
             raise ConfigError(f"epochs: {run_dir} is at epoch {epoch}; give at least that many; got {trainer.cfg.epochs}")
@@ -210,16 +232,16 @@ def _resume(exp: ResumeExperiment, load: Callable, start_over: Callable):
         keep_metrics_through(run_dir / METRICS_FILE, epoch)
         write_config(run_dir, trainer.cfg)
         checkpoints = Checkpoints(run_dir, exp.keep_checkpoints)
-        return _to_the_end(trainer, state, checkpoints, run_dir, exp.tracking)
+        return _to_the_end(trainer, state, checkpoints, run_dir, exp.tracking, film=film)
 
 
-def resume(exp: ResumeExperiment):
+def resume(exp: ResumeExperiment, film: Film | None = None):
     """Continue a run directory from its newest good checkpoint: a phase-2 directory (it holds
     skills.json) as :func:`resume_phase2` does, a phase-1 run on ``exp.num_devices`` devices
     otherwise; returns the final state."""
     if (Path(exp.resume) / SKILLS_FILE).exists():
-        return resume_phase2(exp)
-    return _resume(exp, functools.partial(load_program, num_devices=exp.num_devices), _program_from_config)
+        return resume_phase2(exp, film)
+    return _resume(exp, functools.partial(load_program, num_devices=exp.num_devices), _program_from_config, film)
 
 
 def _program_from_config(run_dir: Path, exp: ResumeExperiment):
@@ -234,7 +256,7 @@ def _phase2_without_checkpoint(run_dir: Path, exp: ResumeExperiment):
                       f"from; start it again with `mjx-emp phase2 PHASE1_RUN_DIR --out {run_dir}`")
 
 
-def train_phase2(exp: Phase2Experiment):
+def train_phase2(exp: Phase2Experiment, film: Film | None = None):
     """Train phase 2 on a phase-1 run's skills in a new phase-2 directory; returns the final state."""
     check_phase2(exp)
     from mjx_emp.phase2.build import make_phase2_trainer
@@ -247,7 +269,7 @@ def train_phase2(exp: Phase2Experiment):
     with run_lock(out, "out"):
         print(f"phase 2 on the skills of {exp.run_dir} (epoch {epoch}), writing to {out}", flush=True)
         write_atomically(out / SKILLS_FILE, json.dumps(config_json(skills.cfg), indent=1))
-        return _train_new(trainer, trainer.init(skills_state), out, exp.keep_checkpoints, exp.tracking)
+        return _train_new(trainer, trainer.init(skills_state), out, exp.keep_checkpoints, exp.tracking, film=film)
 
 
 def load_phase2(phase2_dir: Path, fallback: bool = False, epochs: int | None = None, field: str = "run_dir",
@@ -269,6 +291,6 @@ def load_phase2(phase2_dir: Path, fallback: bool = False, epochs: int | None = N
     return trainer, epoch, state
 
 
-def resume_phase2(exp: ResumeExperiment):
+def resume_phase2(exp: ResumeExperiment, film: Film | None = None):
     """Continue a phase-2 directory from its newest good checkpoint; returns the final state."""
-    return _resume(exp, functools.partial(load_phase2, writer=True), _phase2_without_checkpoint)
+    return _resume(exp, functools.partial(load_phase2, writer=True), _phase2_without_checkpoint, film)

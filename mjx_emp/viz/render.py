@@ -48,6 +48,21 @@ def configure_headless_gl() -> None:
         os.environ.setdefault("EGL_PLATFORM", "surfaceless")
 
 
+def prefer_headless_gl() -> None:
+    """Default MuJoCo to a headless backend whose library is installed (EGL, else OSMesa) for a
+    command that renders only at its end; never raises: without one, that rendering fails alone
+    (a RenderError) instead of ``import mujoco``. Call before ``mujoco`` is first imported."""
+    import ctypes.util
+
+    if "MUJOCO_GL" in os.environ:
+        return
+    if ctypes.util.find_library("EGL"):
+        os.environ["MUJOCO_GL"] = "egl"
+        os.environ.setdefault("EGL_PLATFORM", "surfaceless")
+    elif ctypes.util.find_library("OSMesa"):
+        os.environ["MUJOCO_GL"] = "osmesa"
+
+
 @dataclasses.dataclass(frozen=True)
 class Recording:
     """What the frames need, per primitive step: joint positions, mocap bodies, subgoals."""
@@ -254,6 +269,14 @@ def _write_mp4(frames: np.ndarray, path: Path, fps: float) -> None:
 
 
 def _write_gif(frames: np.ndarray, path: Path, fps: float) -> None:
+    path.write_bytes(gif_bytes(frames, fps))
+
+
+def gif_bytes(frames: np.ndarray, fps: float) -> bytes:
+    """Frames as an animated GIF whose one palette holds every marker colour (a palette per frame
+    would drop the small markers' colours in most frames)."""
+    import io
+
     from PIL import Image
 
     swatches = np.repeat(np.repeat(np.array(
@@ -265,4 +288,34 @@ def _write_gif(frames: np.ndarray, path: Path, fps: float) -> None:
     canvas[sample.shape[0]:, : swatches.shape[1]] = swatches
     palette = Image.fromarray(canvas).quantize(colors=255, method=Image.Quantize.MEDIANCUT)
     images = [Image.fromarray(frame).quantize(palette=palette, dither=Image.Dither.NONE) for frame in frames]
-    images[0].save(path, save_all=True, append_images=images[1:], duration=int(1000 / fps), loop=0)
+    encoded = io.BytesIO()
+    images[0].save(encoded, format="GIF", save_all=True, append_images=images[1:], duration=int(1000 / fps), loop=0)
+    return encoded.getvalue()
+
+
+def record_trained(trainer, state, phase2: bool, key, steps: int) -> Recording:
+    """``steps`` primitive steps of a trained run: the phase-2 policy reaching goals of its region
+    (``phase2``), else the greedy skills (:func:`skill_recording`)."""
+    if phase2:
+        return record_rollout(trainer.greedy_episodes(state), key, steps)
+    return skill_recording(trainer, state, key, steps)
+
+
+VIDEO_SIZE = (640, 480)
+VIDEO_FPS = 10.0
+
+
+def film_for_trackers(trainer, state, run_dir: Path, steps: int):
+    """The trackers' video of a run that just finished training (a :data:`mjx_emp.run.tracking.Film`):
+    ``steps`` greedy steps from the fixed camera at 640x480, written as RUN_DIR/skills.mp4 (a
+    phase-2 directory's: phase2.mp4) as `mjx-emp render` writes it, and kept as a GIF for TensorBoard."""
+    import jax
+
+    from mjx_emp.run.store import SKILLS_FILE
+    from mjx_emp.run.tracking import Video
+
+    phase2 = (Path(run_dir) / SKILLS_FILE).exists()
+    recording = record_trained(trainer, state, phase2, jax.random.key(0), steps)
+    frames = render_frames(trainer.env, recording, *VIDEO_SIZE)
+    path = write_video(frames, Path(run_dir) / ("phase2.mp4" if phase2 else "skills.mp4"), VIDEO_FPS)
+    return Video(path, gif_bytes(frames, VIDEO_FPS), *VIDEO_SIZE)
