@@ -8,8 +8,9 @@ coverage (1 m cells of goal space visited by 48 greedy skills from the initial s
 DIAYN and HIDIO the posterior's mean standard deviation, and phase 2's mean minimum
 distance to goal on 400 goals. Rows carry ``algo``, ``env``, ``preset``, ``seed``,
 ``env_steps``, ``wall_s`` (phase-1 training time summed from the run's metrics, compile
-included), ``coverage_cells``, ``posterior_std``, ``phase2_min_distance`` and
-``phase2_success``. ``python experiments/baselines.py --presets point-mass-k1
+included), ``coverage_cells``, ``posterior_std``, ``phase2_min_distance``,
+``phase2_success`` and ``phase2_curve`` (phase-2 env steps and greedy mean minimum distance
+per epoch). ``python experiments/baselines.py --presets point-mass-k1
 metra-point-mass --seeds 0 1 2 3``; rows are merged into ``--out``.
 """
 
@@ -17,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import re
 from pathlib import Path
 
 import jax
@@ -25,10 +27,12 @@ import tyro
 
 from mjx_emp.algos.registry import GOAL_SPACES, algorithm_of, all_presets, skill_kind
 from mjx_emp.commands import Phase2Experiment, ResumeExperiment, TrainExperiment
+from mjx_emp.envs.registry import DOMAINS
 from mjx_emp.metrics import coverage_cells, mean_and_stderr
 from mjx_emp.phase2.presets import PHASE2_PRESETS, phase2_preset_for
 from mjx_emp.run import jobs, store
 from mjx_emp.run.evaluate import COVERAGE_SKILLS, phase2_figures, skill_figures
+from mjx_emp.viz.plots import colour_of, method_label
 
 ALGOS = ("he", "diayn", "hidio", "dads", "metra")
 
@@ -115,9 +119,11 @@ def phase2_of(run_dir: Path, seed: int, episodes: int = 400) -> dict:
     """RUN_DIR/phase2's figures (trained with ``--phase2``), or None where it has none."""
     phase2_dir = run_dir / store.PHASE2_SUBDIR
     if not (phase2_dir / store.CONFIG_FILE).exists():
-        return {"phase2_min_distance": None, "phase2_success": None}
+        return {"phase2_min_distance": None, "phase2_success": None, "phase2_curve": None}
     figures = phase2_figures(*jobs.load_phase2(phase2_dir), jax.random.key(1000 + seed), episodes)
-    return {"phase2_min_distance": figures["min_distance"], "phase2_success": figures["success"]}
+    steps, distances = phase2_curve(run_dir)
+    return {"phase2_min_distance": figures["min_distance"], "phase2_success": figures["success"],
+            "phase2_curve": [[float(a), float(b)] for a, b in zip(steps, distances)]}
 
 
 def merge_row(out: Path, row: dict, key: tuple[str, ...] = ("preset", "seed")) -> list[dict]:
@@ -172,35 +178,71 @@ def phase2_curve(run_dir: Path) -> tuple[np.ndarray, np.ndarray] | None:
     return np.array([m["env_steps"] for m in lines]), np.array([m["min_distance"] for m in lines])
 
 
+def chart_label(preset: str) -> str:
+    """A preset's name in the charts: its method (``HE k=1``, ``METRA``), GCRL with its box side."""
+    name, width = re.fullmatch(r"(.*?)(?:-w([0-9.]+))?", preset).groups()
+    config = all_presets()[name][1]
+    label = method_label(config)
+    if hasattr(config, "goal_half_width"):
+        side = 2 * (float(width) if width else config.goal_half_width[0])
+        label = f"GCRL {side:g} m box" if len(DOMAINS[config.env].goal_qpos) == 1 else f"GCRL {side:g}x{side:g} m"
+    return label
+
+
+def curve_of(row: dict) -> tuple[np.ndarray, np.ndarray] | None:
+    """A row's phase-2 curve: the one it stores, else read from its run directory if that is still there."""
+    if row.get("phase2_curve"):
+        steps, distances = np.array(row["phase2_curve"]).T
+        return steps, distances
+    return phase2_curve(row["run_dir"])
+
+
 def draw_charts(rows: list[dict], path: Path) -> Path:
     """The paper's Fig. 3-style chart (phase-2 mean min distance against phase-2 steps, mean
-    over seeds with std bars) beside a coverage bar chart (mean ± std over seeds)."""
+    over seeds with a std band; where no row keeps its curve, the final distances as bars)
+    beside a coverage bar chart (mean ± std over seeds); one colour and name per method."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, (curves, bars) = plt.subplots(1, 2, figsize=(11, 4))
+    fig, (phase2, bars) = plt.subplots(1, 2, figsize=(11, 4.2))
     presets = list(dict.fromkeys(r["preset"] for r in rows))
-    for preset in presets:
-        found = [c for c in (phase2_curve(r["run_dir"]) for r in rows if r["preset"] == preset) if c is not None]
-        if not found:
-            continue
-        length = min(len(c[0]) for c in found)
-        steps = found[0][0][:length]
-        distances = np.stack([c[1][:length] for c in found])
-        curves.errorbar(steps, distances.mean(0), yerr=distances.std(0, ddof=1) if len(found) > 1 else None,
-                        label=f"{preset} ({len(found)})", capsize=2)
-    curves.set_xlabel("phase-2 environment steps")
-    curves.set_ylabel("greedy mean min distance to goal (m)")
-    curves.set_title("phase 2 (seeds in brackets)")
-    curves.legend(fontsize=7)
-    cells = [[r["coverage_cells"] for r in rows if r["preset"] == p] for p in presets]
-    bars.bar(range(len(presets)), [np.mean(c) for c in cells],
+    labels, colours = [chart_label(p) for p in presets], []
+    for preset, label in zip(presets, labels):  # a method's own colour, for the first of its variants
+        method = method_label(all_presets()[re.sub(r"-w[0-9.]+$", "", preset)][1])
+        first = colour_of(method, colours)
+        colours.append(first if first not in colours else colour_of(label, colours))
+    seeds = {p: [r for r in rows if r["preset"] == p] for p in presets}
+    curves = {p: [c for c in map(curve_of, seeds[p]) if c is not None] for p in presets}
+    if any(curves.values()):
+        for preset, label, colour in zip(presets, labels, colours):
+            if not curves[preset]:
+                continue
+            length = min(len(c[0]) for c in curves[preset])
+            steps, distances = curves[preset][0][0][:length], np.stack([c[1][:length] for c in curves[preset]])
+            phase2.plot(steps, distances.mean(0), color=colour, label=f"{label} (n={len(distances)})")
+            if len(distances) > 1:
+                spread = distances.std(0, ddof=1)
+                phase2.fill_between(steps, distances.mean(0) - spread, distances.mean(0) + spread, color=colour,
+                                    alpha=0.2, linewidth=0)
+        phase2.set_xlabel("phase-2 environment steps")
+        phase2.legend(fontsize=7)
+    else:
+        finals = [[r["phase2_min_distance"] for r in seeds[p] if r["phase2_min_distance"] is not None] for p in presets]
+        phase2.bar(range(len(presets)), [np.mean(f) if f else np.nan for f in finals], color=colours,
+                   yerr=[np.std(f, ddof=1) if len(f) > 1 else 0 for f in finals], capsize=3)
+        phase2.set_xticks(range(len(presets)), [f"{label} (n={len(f)})" for label, f in zip(labels, finals)],
+                          rotation=30, ha="right", fontsize=7)
+    phase2.set_ylabel("greedy mean min distance to goal (m)")
+    phase2.set_title("phase 2 after training: mean ± std over seeds")
+    cells = [[r["coverage_cells"] for r in seeds[p]] for p in presets]
+    bars.bar(range(len(presets)), [np.mean(c) for c in cells], color=colours,
              yerr=[np.std(c, ddof=1) if len(c) > 1 else 0 for c in cells], capsize=3)
-    bars.set_xticks(range(len(presets)), presets, rotation=30, ha="right", fontsize=7)
+    bars.set_xticks(range(len(presets)), [f"{label} (n={len(c)})" for label, c in zip(labels, cells)],
+                    rotation=30, ha="right", fontsize=7)
     bars.set_ylabel("1 m cells visited by 48 greedy skills")
-    bars.set_title(f"coverage, {rows[0]['env']}")
+    bars.set_title(f"coverage on {rows[0]['env']}: mean ± std over seeds")
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)

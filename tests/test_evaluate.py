@@ -11,6 +11,7 @@ from mjx_emp import cli
 from mjx_emp.metrics import aggregate_phase2, aggregate_runs, coverage_cells, mean_and_stderr, running_min_distance
 from mjx_emp.viz.plots import (
     METHOD_COLOURS,
+    colour_of,
     plot_goal_space_boxes,
     plot_goal_space_growth,
     plot_phase2_curves,
@@ -189,3 +190,12 @@ def test_two_seeds_of_two_methods_plot_as_bands_in_fixed_colours(tmp_path):
     for label in ("HE k=1", "HE k=2"):
         colour = np.array([int(METHOD_COLOURS[label][i:i + 2], 16) for i in (1, 3, 5)])
         assert (np.abs(pixels.astype(int) - colour).sum(axis=-1) < 30).sum() > 200, label
+
+
+def test_a_label_without_a_fixed_colour_takes_one_no_other_label_has():
+    from matplotlib.colors import to_hex
+
+    taken = [METHOD_COLOURS["HE k=1"], METHOD_COLOURS["GCRL k=1"], (1.0, 0.4980392156862745, 0.054901960784313725)]
+    spare = colour_of("GCRL 16x16 m", taken)
+    assert to_hex(spare) not in {to_hex(c) for c in taken}  # hex and RGB forms of a colour are the same colour
+    assert colour_of("HE k=1", []) == METHOD_COLOURS["HE k=1"]

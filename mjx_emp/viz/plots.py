@@ -67,7 +67,10 @@ def colour_of(label: str, taken: list[str]) -> str:
     """``label``'s colour: its fixed one, else the first colour of the cycle not ``taken``."""
     if label in METHOD_COLOURS:
         return METHOD_COLOURS[label]
-    spare = [c for c in _pyplot().rcParams["axes.prop_cycle"].by_key()["color"] if c not in taken]
+    from matplotlib.colors import to_hex
+
+    used = {to_hex(c) for c in taken}  # the cycle may hold RGB tuples where METHOD_COLOURS holds hex
+    spare = [to_hex(c) for c in _pyplot().rcParams["axes.prop_cycle"].by_key()["color"] if to_hex(c) not in used]
     return spare[0] if spare else "black"
 
 
