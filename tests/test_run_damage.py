@@ -46,6 +46,10 @@ def test_a_run_killed_before_its_first_checkpoint_is_reused_by_train(tmp_path, c
     assert checkpoint_epochs(run_dir) == [0, 1]
     with pytest.raises(ConfigError, match="already holds a run"):  # now it holds one
         jobs.train(TrainExperiment(config=cfg, run_dir=str(run_dir)))
+    # phase 2 aimed at it says what it holds and the command that continues that
+    with pytest.raises(ConfigError, match=f"out: '{run_dir}' already holds a run; continue it with "
+                                          f"`mjx-emp resume {run_dir}`"):
+        store.fresh_run_dir(str(run_dir), "out", "a phase-2 run", "mjx-emp phase2")
 
 
 def test_a_phase2_directory_without_a_checkpoint_names_the_way_out_and_does_not_block_eval(tmp_path):

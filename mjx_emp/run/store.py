@@ -251,16 +251,19 @@ def run_lock(run_dir: Path, field: str) -> Iterator[None]:
 
 
 def fresh_run_dir(path: str, field: str, what: str, command: str) -> Path:
-    """Create the directory of a new run; one that already holds ``what`` (:func:`holds_a_run`)
-    is refused, naming ``field``; one a kill left before its first checkpoint is reused."""
+    """Create the directory of ``what`` (a new run, to be made by ``command``); one that already
+    holds a run (:func:`holds_a_run`) is refused, naming ``field`` and what it holds; one a kill
+    left before its first checkpoint is reused."""
     run_dir = prepare_run_dir(path, field)
+    held = "a phase-2 run" if (run_dir / SKILLS_FILE).exists() else "a run"
     if holds_a_run(run_dir):
+        resume = f"{command} --resume" if held == what else "mjx-emp resume"
         raise ConfigError(
-            f"{field}: {str(run_dir)!r} already holds {what}; continue it with "
-            f"`{command} --resume {run_dir}` or choose another --{field.replace('_', '-')}"
+            f"{field}: {str(run_dir)!r} already holds {held}; continue it with "
+            f"`{resume} {run_dir}` or choose another --{field.replace('_', '-')}"
         )
     if (run_dir / CONFIG_FILE).exists() or (run_dir / CHECKPOINT_SUBDIR).exists():
-        print(f"note: {run_dir} holds {what} stopped before its first checkpoint; it is started anew", flush=True)
+        print(f"note: {run_dir} holds {held} stopped before its first checkpoint; it is started anew", flush=True)
     return run_dir
 
 
