@@ -25,9 +25,15 @@ HEADROOM = 0.9
 def state_bytes(program: Any) -> int:
     """Bytes of ``program``'s whole train state (its ``init``'s shapes; nothing allocated)."""
     import jax
+
+    return tree_bytes(jax.eval_shape(program.init))
+
+
+def tree_bytes(shapes: Any) -> int:
+    """Bytes of a pytree of arrays or shapes (a PRNG key counted as its 8 bytes of key data)."""
+    import jax
     import numpy as np
 
-    shapes = jax.eval_shape(program.init)
     total = 0
     for leaf in jax.tree.leaves(shapes):
         if jax.dtypes.issubdtype(leaf.dtype, jax.dtypes.prng_key):
