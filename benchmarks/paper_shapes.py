@@ -1,0 +1,152 @@
+"""The paper's Table 1 and 2 at their real shapes, without a GPU: what each preset needs in memory.
+
+For every Table-1 phase-1 preset and every phase-2 preset whose skills are a Table-1 preset:
+the train state's exact bytes (``jax.eval_shape`` of its ``init``, nothing allocated), the
+preflight's estimate of one epoch's working set, and whether their sum fits the planning
+share (the preflight's HEADROOM) of an 80 GB and a 141 GB GPU. ``--epoch PRESET`` also runs
+one real epoch of a phase-1 preset at its full shape on this machine and reports compile
+and epoch time, peak resident memory and the metrics line (on a 2-core CPU this takes long:
+4096 environments). Prints a Markdown table and writes JSON (default
+``benchmarks/results/paper_shapes_<backend>.json``).
+
+    python benchmarks/paper_shapes.py
+    python benchmarks/paper_shapes.py --epoch ant-field-small-k1
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import platform
+import resource
+import time
+from pathlib import Path
+
+import jax
+import tyro
+
+from mjx_emp.algos.he.presets import PRESETS
+from mjx_emp.algos.registry import make_agent
+from mjx_emp.phase2.build import make_phase2_trainer
+from mjx_emp.phase2.presets import PHASE2_PRESETS
+from mjx_emp.run.preflight import HEADROOM, state_bytes, tree_bytes, working_set_bytes
+
+GPUS = {"80 GB": 80e9, "141 GB": 141e9}
+"""Device memories the shapes are held against (an A100/H100 80 GB; an H200)."""
+
+
+@dataclasses.dataclass
+class Args:
+    """Memory of the paper-scale presets, and optionally one full-shape epoch."""
+
+    compile: tuple[str, ...] = ("ant-field-small-k1", "half-cheetah-small-k1")
+    """Phase-1 presets whose epoch is compiled at full shape (nothing runs): compile time and
+    XLA's own memory figures for the program (arguments, outputs, temporaries)."""
+    epoch: tuple[str, ...] = ()
+    """Phase-1 presets to run one real epoch of at full shape (e.g. ant-field-small-k1)."""
+    out: str = ""
+    """JSON output path; empty means benchmarks/results/paper_shapes_<backend>.json."""
+
+
+def fits(state: int, work: int) -> dict[str, bool]:
+    """Whether state plus working set stays within the preflight's share of each GPU's memory."""
+    return {name: state + work <= HEADROOM * size for name, size in GPUS.items()}
+
+
+def phase1_row(name: str) -> dict:
+    """A Table-1 preset's state bytes, working-set estimate and fit."""
+    cfg = PRESETS[name][1]
+    agent = make_agent(cfg)
+    state, work = state_bytes(agent), working_set_bytes(cfg, agent.env.obs_size)
+    return {"preset": name, "phase": 1, "env": cfg.env, "k": cfg.k, "num_envs": cfg.num_envs,
+            "replay_capacity": cfg.replay_capacity, "state_bytes": state, "working_set_bytes": work,
+            "fits": fits(state, work)}
+
+
+def phase2_row(name: str) -> dict:
+    """A Table-2 phase-2 preset's bytes over its phase-1 preset's skills (the frozen skills'
+    state included, as the phase-2 trainer holds it)."""
+    _, phase1, cfg = PHASE2_PRESETS[name]
+    trainer = make_phase2_trainer(make_agent(PRESETS[phase1][1]), cfg)
+    shapes = jax.eval_shape(trainer.init, jax.eval_shape(trainer.phase1.init))
+    state = tree_bytes(shapes)
+    work = working_set_bytes(cfg, trainer.phase1.env.obs_size)
+    return {"preset": name, "phase": 2, "skills": phase1, "num_envs": cfg.num_envs, "state_bytes": state,
+            "working_set_bytes": work, "fits": fits(state, work)}
+
+
+def compiled_epoch(name: str) -> dict:
+    """A phase-1 preset's epoch compiled at its full shape for this backend, run on nothing:
+    compile seconds and the compiled program's memory (XLA's memory analysis), the figure the
+    preflight's working-set estimate stands in for."""
+    agent = make_agent(PRESETS[name][1])
+    shapes = jax.eval_shape(agent.init)
+    start = time.perf_counter()
+    compiled = jax.jit(agent.train_epoch).lower(shapes).compile()
+    seconds = time.perf_counter() - start
+    memory = compiled.memory_analysis()
+    figures = {field: int(getattr(memory, f"{field}_in_bytes")) for field in
+               ("argument_size", "output_size", "alias_size", "temp_size", "generated_code_size")} if memory else {}
+    return {"preset": name, "compile_s": seconds, "memory": figures,
+            "preflight_state_bytes": state_bytes(agent),
+            "preflight_working_set_bytes": working_set_bytes(agent.cfg, agent.env.obs_size)}
+
+
+def full_shape_epoch(name: str) -> dict:
+    """One real epoch of a phase-1 preset at its full shape: init and first-epoch seconds (the
+    first epoch includes its compilation), peak resident memory and the epoch's metrics line."""
+    cfg = dataclasses.replace(PRESETS[name][1], epochs=1)
+    agent = make_agent(cfg)
+    start = time.perf_counter()
+    state = jax.block_until_ready(agent.init())
+    init_s = time.perf_counter() - start
+    start = time.perf_counter()
+    state, stats = agent.train_epoch(state)
+    jax.block_until_ready(state)
+    epoch_s = time.perf_counter() - start
+    metrics = agent.metrics(state, stats, epoch_s)
+    return {"preset": name, "init_s": init_s, "first_epoch_s": epoch_s, "env_steps": float(state.env_steps.value()),
+            "peak_rss_bytes": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024, "metrics": metrics}
+
+
+def gib(count: float) -> str:
+    return f"{count / 2**30:.3g}"
+
+
+def main(args: Args) -> None:
+    table1 = [name for name, (description, _) in PRESETS.items() if description.startswith("Table 1")]
+    table2 = [name for name, (_, phase1, _) in PHASE2_PRESETS.items() if phase1 in table1]
+    rows = []
+    for name in table1:
+        rows.append(phase1_row(name))
+        print(f"{name}: {gib(rows[-1]['state_bytes'])} GiB state", flush=True)
+    for name in table2:
+        rows.append(phase2_row(name))
+        print(f"{name} (phase 2): {gib(rows[-1]['state_bytes'])} GiB state", flush=True)
+    compiled = [compiled_epoch(name) for name in args.compile]
+    epochs = [full_shape_epoch(name) for name in args.epoch]
+    print("\n| preset | phase | envs | state (GiB) | epoch working set (GiB) | fits 80 GB | fits 141 GB |")
+    print("|---|---|---|---|---|---|---|")
+    for r in rows:
+        print(f"| {r['preset']} | {r['phase']} | {r['num_envs']} | {gib(r['state_bytes'])} | "
+              f"{gib(r['working_set_bytes'])} | {'yes' if r['fits']['80 GB'] else 'no'} | "
+              f"{'yes' if r['fits']['141 GB'] else 'no'} |")
+    for c in compiled:
+        m = c["memory"]
+        print(f"{c['preset']} epoch compiled at full shape in {c['compile_s']:.0f} s: arguments "
+              f"{gib(m.get('argument_size', 0))} GiB, temporaries {gib(m.get('temp_size', 0))} GiB (preflight: state "
+              f"{gib(c['preflight_state_bytes'])}, working set {gib(c['preflight_working_set_bytes'])} GiB)")
+    for e in epochs:
+        print(f"{e['preset']}: init {e['init_s']:.0f} s, first epoch {e['first_epoch_s']:.0f} s, "
+              f"peak RSS {gib(e['peak_rss_bytes'])} GiB")
+    out = Path(args.out or f"benchmarks/results/paper_shapes_{jax.default_backend()}.json")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps({"backend": jax.default_backend(), "machine": platform.processor() or platform.machine(),
+                               "headroom": HEADROOM, "gpus": GPUS, "rows": rows, "compiled_epochs": compiled,
+                               "full_shape_epochs": epochs},
+                              indent=1))
+    print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+    main(tyro.cli(Args))
