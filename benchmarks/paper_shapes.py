@@ -57,7 +57,7 @@ def phase1_row(name: str) -> dict:
     """A Table-1 preset's state bytes, working-set estimate and fit."""
     cfg = PRESETS[name][1]
     agent = make_agent(cfg)
-    state, work = state_bytes(agent), working_set_bytes(cfg, agent.env.obs_size)
+    state, work = state_bytes(agent), working_set_bytes(cfg, agent.env)
     return {"preset": name, "phase": 1, "env": cfg.env, "k": cfg.k, "num_envs": cfg.num_envs,
             "replay_capacity": cfg.replay_capacity, "state_bytes": state, "working_set_bytes": work,
             "fits": fits(state, work)}
@@ -70,7 +70,7 @@ def phase2_row(name: str) -> dict:
     trainer = make_phase2_trainer(make_agent(PRESETS[phase1][1]), cfg)
     shapes = jax.eval_shape(trainer.init, jax.eval_shape(trainer.phase1.init))
     state = tree_bytes(shapes)
-    work = working_set_bytes(cfg, trainer.phase1.env.obs_size)
+    work = working_set_bytes(cfg, trainer.phase1.env)
     return {"preset": name, "phase": 2, "skills": phase1, "num_envs": cfg.num_envs, "state_bytes": state,
             "working_set_bytes": work, "fits": fits(state, work)}
 
@@ -89,7 +89,7 @@ def compiled_epoch(name: str) -> dict:
                ("argument_size", "output_size", "alias_size", "temp_size", "generated_code_size")} if memory else {}
     return {"preset": name, "compile_s": seconds, "memory": figures,
             "preflight_state_bytes": state_bytes(agent),
-            "preflight_working_set_bytes": working_set_bytes(agent.cfg, agent.env.obs_size)}
+            "preflight_working_set_bytes": working_set_bytes(agent.cfg, agent.env)}
 
 
 def full_shape_epoch(name: str) -> dict:

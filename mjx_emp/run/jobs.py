@@ -153,7 +153,7 @@ def check_memory(program) -> None:
     from mjx_emp.run.preflight import preflight
 
     agent = getattr(program, "alone", program)  # a split run: one shard's agent sees the environment
-    preflight(program, program.cfg, agent.env.obs_size, getattr(program, "num_devices", 1))
+    preflight(program, program.cfg, agent.env, getattr(program, "num_devices", 1))
 
 
 def _restore(run_dir: Path, trainer, template, fallback: bool = False, epoch: int | None = None,

@@ -43,17 +43,26 @@ def tree_bytes(shapes: Any) -> int:
     return total
 
 
-def working_set_bytes(cfg: Any, obs_size: int) -> int:
-    """An estimate of one epoch's transient memory: a collection chunk of transitions at every
-    level (obs, next obs, goal, action in float32) and a minibatch through actor and critic,
-    forward and backward."""
+def env_state_bytes(env: Any) -> int:
+    """Bytes of one environment's simulation state (the shapes of its reset; nothing runs)."""
+    import jax
+
+    return tree_bytes(jax.eval_shape(env.reset, jax.random.key(0)))
+
+
+def working_set_bytes(cfg: Any, env: Any) -> int:
+    """An estimate of one epoch's transient memory: the batched simulation state twice (a
+    rollout step's input and output), a collection chunk of transitions at every level (obs,
+    next obs, goal, action in float32) and a minibatch through actor and critic, forward and
+    backward."""
+    obs_size = env.obs_size
     steps = getattr(cfg, "chunk_steps", None) or getattr(cfg, "collect_steps", 1)
     levels = getattr(cfg, "k", 1)
     row = 4 * (3 * obs_size + 16)
     chunk = cfg.num_envs * steps * levels * row
     widest = max(cfg.hidden) if cfg.hidden else 1
     minibatch = cfg.batch_size * 4 * (obs_size + widest * len(cfg.hidden)) * 2 * 3
-    return chunk + minibatch
+    return 2 * cfg.num_envs * env_state_bytes(env) + chunk + minibatch
 
 
 def available_bytes() -> tuple[int, str]:
@@ -75,12 +84,12 @@ def _gib(count: float) -> str:
     return f"{count / 2**30:.3g} GiB"
 
 
-def preflight(program: Any, cfg: Any, obs_size: int, devices: int = 1) -> dict[str, int]:
+def preflight(program: Any, cfg: Any, env: Any, devices: int = 1) -> dict[str, int]:
     """Refuse (ConfigError, exit 2) a run whose state and working set exceed the free memory of
     one of its ``devices`` (a split run's state is divided among them), naming the estimate
     and the fields to lower; returns the estimate otherwise."""
     state = state_bytes(program) // devices
-    work = working_set_bytes(cfg, obs_size) // devices
+    work = working_set_bytes(cfg, env) // devices
     free, where = available_bytes()
     if state + work > HEADROOM * free:
         fields = [name for name in LOWER if hasattr(cfg, name)]
