@@ -118,7 +118,7 @@ def memory_step(impl: str, plan: dict) -> dict:
     free, where = available_bytes()
     device = jax.local_devices()[0]
     stats = device.memory_stats() if hasattr(device, "memory_stats") else None
-    return {"impl": impl, "state_bytes": state_bytes(agent), "working_set_bytes": working_set_bytes(cfg, agent.env.obs_size),
+    return {"impl": impl, "state_bytes": state_bytes(agent), "working_set_bytes": working_set_bytes(cfg, agent.env),
             "free_bytes": free, "where": where, "device_memory_stats": dict(stats or {})}
 
 
