@@ -191,7 +191,7 @@ def check_eval(exp: EvalExperiment) -> None:
     check_distinct_runs(exp.run_dirs, "eval")
 
 
-def phase2_report(run_dir: Path, key, episodes: int, phase2_figures) -> dict | None:
+def phase2_report(run_dir: Path, key, episodes: int) -> dict | None:
     """RUN_DIR/phase2's figures, None without one; a phase-2 folder that cannot be loaded is
     reported on stderr and skipped, so it never blocks the phase-1 evaluation."""
     phase2_dir = Path(run_dir) / store.PHASE2_SUBDIR
@@ -202,6 +202,8 @@ def phase2_report(run_dir: Path, key, episodes: int, phase2_figures) -> dict | N
     except (ConfigError, CheckpointError) as err:
         print(f"mjx-emp: {phase2_dir} is unusable, its phase 2 is left out: {err}", file=sys.stderr, flush=True)
         return None
+    from mjx_emp.run.evaluate import phase2_figures
+
     return phase2_figures(*loaded, key, episodes)
 
 
@@ -217,7 +219,6 @@ def evaluate(exp: EvalExperiment) -> dict:
     import jax
 
     from mjx_emp.metrics import aggregate_phase2
-    from mjx_emp.run.evaluate import phase2_figures
 
     algorithms = {algorithm.name: algorithm
                   for algorithm in (algorithm_of(store.read_run_config(Path(d), "run_dirs")) for d in exp.run_dirs)}
@@ -229,7 +230,7 @@ def evaluate(exp: EvalExperiment) -> dict:
         print(f"evaluating {run_dir} ({index} of {len(exp.run_dirs)}) ...", flush=True)
         key = jax.random.key(exp.seed)
         report = {"run_dir": run_dir, **(skill_run_figures if latent else goal_space_run_figures)(run_dir, key, exp)}
-        phase2 = phase2_report(Path(run_dir), key, exp.episodes, phase2_figures)
+        phase2 = phase2_report(Path(run_dir), key, exp.episodes)
         if phase2 is not None:
             report["phase2"] = phase2
         runs.append(report)
