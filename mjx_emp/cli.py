@@ -149,9 +149,9 @@ def render(exp: RenderExperiment) -> None:
     for name in ("fps", "distance"):
         if not (math.isfinite(getattr(exp, name)) and getattr(exp, name) > 0):
             raise ConfigError(f"{name}: must be a finite number > 0; got {getattr(exp, name)}")
-    from mjx_emp.viz.render import check_video, record_trained, render_frames, write_video
+    from mjx_emp.viz.render import check_video, record_trained, render_frames, video_name, write_video
 
-    out = Path(exp.out or Path(exp.run_dir) / ("phase2.mp4" if exp.phase2 else "skills.mp4"))
+    out = Path(exp.out or Path(exp.run_dir) / video_name(exp.phase2))
     check_video(out, exp.width, exp.height)  # before the run is loaded
     import jax
 
@@ -405,12 +405,14 @@ def film_for_trackers(trainer, state, run_dir: Path, steps: int):
 
 
 COMMANDS: dict[str, tuple[Any, Any, str]] = {
-    "train": (preset_commands, functools.partial(jobs.train, film=film_for_trackers), "Train a new run of a preset; every config field is a flag "
-              "(`train --resume RUN_DIR` is `resume RUN_DIR`)."),
-    "resume": (lambda: ResumeExperiment, functools.partial(jobs.resume, film=film_for_trackers), "Continue a run or phase-2 directory from its newest good "
-               "checkpoint, bit for bit."),
-    "phase2": (phase2_commands, functools.partial(jobs.train_phase2, film=film_for_trackers), "Phase 2: reach goals of a region with a run's skills as actions "
-               "(`phase2 RUN_DIR` picks the run's own preset)."),
+    "train": (preset_commands, functools.partial(jobs.train, film=film_for_trackers),
+              "Train a new run of a preset; every config field is a flag (`train --resume RUN_DIR` is `resume "
+              "RUN_DIR`)."),
+    "resume": (lambda: ResumeExperiment, functools.partial(jobs.resume, film=film_for_trackers),
+               "Continue a run or phase-2 directory from its newest good checkpoint, bit for bit."),
+    "phase2": (phase2_commands, functools.partial(jobs.train_phase2, film=film_for_trackers),
+               "Phase 2: reach goals of a region with a run's skills as actions (`phase2 RUN_DIR` picks the run's "
+               "own preset)."),
     "presets": (lambda: PresetsExperiment, list_presets, "List every phase-1 and phase-2 preset."),
     "eval": (lambda: EvalExperiment, evaluate, "Figures of runs' newest checkpoints (goal spaces, success, "
              "coverage; phase 2's distance), mean over runs."),

@@ -31,8 +31,8 @@ import orbax.checkpoint as ocp
 from mjx_emp.checks import config_from_dict
 from mjx_emp.counters import digits
 from mjx_emp.errors import CheckpointError, CheckpointWriteError
-
 from mjx_emp.run.store import CHECKPOINT_SUBDIR, REJECTED_SUBDIR
+
 RESUMABLE_CHANGES = ("epochs",)
 """Config fields a resumed run may change: they do not alter what one epoch computes."""
 

@@ -28,7 +28,6 @@ from mjx_emp.commands import (
 from mjx_emp.errors import ConfigError, RenderError
 from mjx_emp.phase2.config import Phase2Config
 from mjx_emp.run.loop import train_to_the_end
-from mjx_emp.run.tracking import Film, Trackers, open_trackers
 from mjx_emp.run.store import (
     CONFIG_FILE,
     METRICS_FILE,
@@ -44,6 +43,7 @@ from mjx_emp.run.store import (
     write_atomically,
     write_config,
 )
+from mjx_emp.run.tracking import Film, Trackers, open_trackers
 
 
 def _to_the_end(trainer, state, checkpoints, run_dir: Path, tracking: Tracking,

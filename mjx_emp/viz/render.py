@@ -301,21 +301,25 @@ def record_trained(trainer, state, phase2: bool, key, steps: int) -> Recording:
     return skill_recording(trainer, state, key, steps)
 
 
-VIDEO_SIZE = (640, 480)
-VIDEO_FPS = 10.0
+def video_name(phase2: bool) -> str:
+    """A run's default video file: ``skills.mp4``, or ``phase2.mp4`` for its phase-2 policy."""
+    return "phase2.mp4" if phase2 else "skills.mp4"
 
 
 def film_for_trackers(trainer, state, run_dir: Path, steps: int):
     """The trackers' video of a run that just finished training (a :data:`mjx_emp.run.tracking.Film`):
-    ``steps`` greedy steps from the fixed camera at 640x480, written as RUN_DIR/skills.mp4 (a
-    phase-2 directory's: phase2.mp4) as `mjx-emp render` writes it, and kept as a GIF for TensorBoard."""
+    ``steps`` greedy steps filmed as `mjx-emp render` films them by default (its size, fps,
+    camera and seed), written into RUN_DIR (:func:`video_name`; a phase-2 directory films its
+    phase-2 policy) and kept as a GIF for TensorBoard."""
     import jax
 
+    from mjx_emp.commands import RenderExperiment
     from mjx_emp.run.store import SKILLS_FILE
     from mjx_emp.run.tracking import Video
 
     phase2 = (Path(run_dir) / SKILLS_FILE).exists()
-    recording = record_trained(trainer, state, phase2, jax.random.key(0), steps)
-    frames = render_frames(trainer.env, recording, *VIDEO_SIZE)
-    path = write_video(frames, Path(run_dir) / ("phase2.mp4" if phase2 else "skills.mp4"), VIDEO_FPS)
-    return Video(path, gif_bytes(frames, VIDEO_FPS), *VIDEO_SIZE)
+    look = RenderExperiment(run_dir=str(run_dir), steps=steps)
+    recording = record_trained(trainer, state, phase2, jax.random.key(look.seed), steps)
+    frames = render_frames(trainer.env, recording, look.width, look.height, look.camera, look.distance)
+    path = write_video(frames, Path(run_dir) / video_name(phase2), look.fps)
+    return Video(path, gif_bytes(frames, look.fps), look.width, look.height)
