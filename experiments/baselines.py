@@ -32,7 +32,7 @@ from mjx_emp.metrics import coverage_cells, mean_and_stderr
 from mjx_emp.phase2.presets import PHASE2_PRESETS, phase2_preset_for
 from mjx_emp.run import jobs, store
 from mjx_emp.run.evaluate import COVERAGE_SKILLS, phase2_figures, skill_figures
-from mjx_emp.viz.plots import colour_of, method_label
+from mjx_emp.viz.plots import colour_of, method_label, seed_band
 
 ALGOS = ("he", "diayn", "hidio", "dads", "metra")
 
@@ -219,13 +219,11 @@ def draw_charts(rows: list[dict], path: Path) -> Path:
         for preset, label, colour in zip(presets, labels, colours):
             if not curves[preset]:
                 continue
-            length = min(len(c[0]) for c in curves[preset])
-            steps, distances = curves[preset][0][0][:length], np.stack([c[1][:length] for c in curves[preset]])
-            phase2.plot(steps, distances.mean(0), color=colour, label=f"{label} (n={len(distances)})")
-            if len(distances) > 1:
-                spread = distances.std(0, ddof=1)
-                phase2.fill_between(steps, distances.mean(0) - spread, distances.mean(0) + spread, color=colour,
-                                    alpha=0.2, linewidth=0)
+            band = seed_band(curves[preset])
+            phase2.plot(band["steps"], band["mean"], color=colour, label=f"{label} (n={band['count']})")
+            if band["count"] > 1:
+                phase2.fill_between(band["steps"], band["mean"] - band["std"], band["mean"] + band["std"],
+                                    color=colour, alpha=0.2, linewidth=0)
         phase2.set_xlabel("phase-2 environment steps")
         phase2.legend(fontsize=7)
     else:
