@@ -6,11 +6,11 @@ preflight's estimate of one epoch's working set, and whether their sum fits the 
 share (the preflight's HEADROOM) of an 80 GB and a 141 GB GPU. ``--epoch PRESET`` also runs
 one real epoch of a phase-1 preset at its full shape on this machine and reports compile
 and epoch time, peak resident memory and the metrics line (on a 2-core CPU this takes long:
-4096 environments). Prints a Markdown table and writes JSON (default
+4096 environments); ``--phase2-epoch PRESET`` does the same for a phase-2 preset. Prints a Markdown table and writes JSON (default
 ``benchmarks/results/paper_shapes_<backend>.json``).
 
     python benchmarks/paper_shapes.py
-    python benchmarks/paper_shapes.py --epoch ant-field-small-k1
+    python benchmarks/paper_shapes.py --epoch ant-field-small-k1 --phase2-epoch ant-field-small-k1
 """
 
 from __future__ import annotations
@@ -44,6 +44,9 @@ class Args:
     XLA's own memory figures for the program (arguments, outputs, temporaries)."""
     epoch: tuple[str, ...] = ()
     """Phase-1 presets to run one real epoch of at full shape (e.g. ant-field-small-k1)."""
+    phase2_epoch: tuple[str, ...] = ()
+    """Phase-2 presets to run one real epoch of at full shape, over freshly initialised (untrained)
+    skills of their phase-1 preset: the shapes and the work are a trained run's."""
     out: str = ""
     """JSON output path; empty means benchmarks/results/paper_shapes_<backend>.json."""
 
@@ -105,8 +108,27 @@ def full_shape_epoch(name: str) -> dict:
     jax.block_until_ready(state)
     epoch_s = time.perf_counter() - start
     metrics = agent.metrics(state, stats, epoch_s)
-    return {"preset": name, "init_s": init_s, "first_epoch_s": epoch_s, "env_steps": float(state.env_steps.value()),
+    return {"preset": name, "phase": 1, "init_s": init_s, "first_epoch_s": epoch_s, "env_steps": float(state.env_steps.value()),
             "peak_rss_bytes": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024, "metrics": metrics}
+
+
+def full_shape_phase2_epoch(name: str) -> dict:
+    """One real phase-2 epoch of a preset at its full shape, over its phase-1 preset's skills as
+    ``init`` makes them (phase 2 freezes them, so their values change nothing it computes or
+    allocates): init and first-epoch seconds (compilation included), peak resident memory and
+    the metrics line."""
+    _, phase1, cfg = PHASE2_PRESETS[name]
+    trainer = make_phase2_trainer(make_agent(PRESETS[phase1][1]), dataclasses.replace(cfg, epochs=1))
+    start = time.perf_counter()
+    state = jax.block_until_ready(trainer.init(trainer.phase1.init()))
+    init_s = time.perf_counter() - start
+    start = time.perf_counter()
+    state, stats = trainer.train_epoch(state)
+    jax.block_until_ready(state)
+    epoch_s = time.perf_counter() - start
+    return {"preset": name, "phase": 2, "skills": phase1, "init_s": init_s, "first_epoch_s": epoch_s,
+            "peak_rss_bytes": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024,
+            "metrics": trainer.metrics(state, stats, epoch_s)}
 
 
 def gib(count: float) -> str:
@@ -125,6 +147,7 @@ def main(args: Args) -> None:
         print(f"{name} (phase 2): {gib(rows[-1]['state_bytes'])} GiB state", flush=True)
     compiled = [compiled_epoch(name) for name in args.compile]
     epochs = [full_shape_epoch(name) for name in args.epoch]
+    epochs += [full_shape_phase2_epoch(name) for name in args.phase2_epoch]
     print("\n| preset | phase | envs | state (GiB) | epoch working set (GiB) | fits 80 GB | fits 141 GB |")
     print("|---|---|---|---|---|---|---|")
     for r in rows:
@@ -137,7 +160,7 @@ def main(args: Args) -> None:
               f"{gib(m.get('argument_size', 0))} GiB, temporaries {gib(m.get('temp_size', 0))} GiB (preflight: state "
               f"{gib(c['preflight_state_bytes'])}, working set {gib(c['preflight_working_set_bytes'])} GiB)")
     for e in epochs:
-        print(f"{e['preset']}: init {e['init_s']:.0f} s, first epoch {e['first_epoch_s']:.0f} s, "
+        print(f"{e['preset']} (phase {e['phase']}): init {e['init_s']:.0f} s, first epoch {e['first_epoch_s']:.0f} s, "
               f"peak RSS {gib(e['peak_rss_bytes'])} GiB")
     out = Path(args.out or f"benchmarks/results/paper_shapes_{jax.default_backend()}.json")
     out.parent.mkdir(parents=True, exist_ok=True)
