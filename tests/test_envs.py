@@ -1,5 +1,7 @@
 """Functional env API: resets, goal map, NaN guard, cages."""
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import mujoco
@@ -10,6 +12,13 @@ from mjx_emp.algos.he.config import HEConfig, check_train_config
 from mjx_emp.envs.env import make_env
 from mjx_emp.envs.registry import DOMAINS
 from mjx_emp.errors import ConfigError
+
+
+@functools.cache
+def jitted_step(env):
+    """One compiled ``env.step`` per domain for the whole module: a fresh ``jax.jit`` wrapper
+    would compile the same step again in every test (10-20 s each on the robots)."""
+    return jax.jit(env.step)
 
 
 def torso_position(env, state) -> np.ndarray:
@@ -36,7 +45,7 @@ def test_reset_to_places_torso_and_goal_of_matches(name):
 @pytest.mark.parametrize("name", ["point_mass", "ant_field", "half_cheetah_field"])
 def test_goal_of_tracks_torso_while_moving(name):
     env = make_env(name)
-    step = jax.jit(env.step)
+    step = jitted_step(env)
     state = env.reset(jax.random.key(1))
     key = jax.random.key(2)
     for _ in range(5):
@@ -53,7 +62,7 @@ def test_goal_of_tracks_torso_while_moving(name):
 
 def test_point_mass_action_moves_a_useful_distance():
     env = make_env("point_mass")
-    step = jax.jit(env.step)
+    step = jitted_step(env)
     state = env.reset(jax.random.key(0))
     for _ in range(20):
         state = step(state, jnp.array([1.0, 0.0]))
@@ -65,11 +74,11 @@ def test_nan_guard_resets_and_counts():
     env = make_env("point_mass")
     state = env.reset_to(jax.random.key(0), jnp.array([3.0, 4.0]))
     broken = state.replace(data=state.data.replace(qvel=jnp.array([jnp.nan, 0.0])))
-    stepped = jax.jit(env.step)(broken, jnp.zeros(2))
+    stepped = jitted_step(env)(broken, jnp.zeros(2))
     assert int(stepped.nan_resets) == 1
     np.testing.assert_allclose(env.goal_of(stepped), env.home_goal())
     assert np.isfinite(np.asarray(stepped.data.qvel)).all()
-    again = jax.jit(env.step)(stepped, jnp.zeros(2))
+    again = jitted_step(env)(stepped, jnp.zeros(2))
     assert int(again.nan_resets) == 1, "a healthy step must not count"
 
 
@@ -96,7 +105,7 @@ def upside_down(env, state):
 
 def test_an_ant_upside_down_is_reset_home_and_counted_and_an_upright_one_is_not():
     env = make_env("ant_field")
-    step = jax.jit(env.step)
+    step = jitted_step(env)
     state = env.reset_to(jax.random.key(0), jnp.array([3.0, -1.0]))
     upright = step(state, jnp.zeros(env.action_size))
     assert int(upright.flip_resets) == 0 and int(upright.resets) == 0
@@ -111,7 +120,7 @@ def test_an_ant_upside_down_is_reset_home_and_counted_and_an_upright_one_is_not(
 def test_a_half_cheetah_on_its_back_keeps_running():
     env = make_env("half_cheetah_field")
     state = upside_down(env, env.reset_to(jax.random.key(0), jnp.array([2.0])))
-    stepped = jax.jit(env.step)(state, jnp.ones(env.action_size))
+    stepped = jitted_step(env)(state, jnp.ones(env.action_size))
     assert int(stepped.resets) == 0
     assert abs(float(env.goal_of(stepped)[0]) - 2.0) < 1.0  # not sent home to x = 0
 
@@ -123,7 +132,7 @@ def test_unknown_env_names_the_allowed_values():
 
 def test_half_cheetah_cage_wall_blocks_until_button_opens_it():
     env = make_env("half_cheetah_cage")
-    step = jax.jit(env.step)
+    step = jitted_step(env)
     wall_x = float(env.home_mocap_pos[env.cage.wall_mocap_ids[0]][0])
     assert wall_x == 8.0
     # Head tip starts 0.1 short of the wall: driving into it, the torso cannot follow.
@@ -182,7 +191,7 @@ def test_heading_frame_needs_a_free_torso():
 @pytest.mark.parametrize("name", ["ant_cage", "half_cheetah_cage"])
 def test_the_button_opens_the_cage_and_the_latch_ignores_presses_outside_it_and_stays_open(name):
     env = make_env(name)
-    step = jax.jit(env.step)
+    step = jitted_step(env)
     center, half = np.asarray(env.cage.button_center), np.asarray(env.cage.button_half_size)
     outside = env.reset_to(jax.random.key(0), jnp.asarray(center - half - 0.3))  # just short of every edge
     assert not bool(env.cage_open(step(outside, jnp.zeros(env.action_size))))
