@@ -136,7 +136,8 @@ def test_flat_rollout_holds_a_skill_for_n_actions_then_restarts():
 
 # ---- agents through the run layer -----------------------------------------------------------
 
-@pytest.mark.parametrize("method", sorted(METHODS) + ["gcrl"])
+# GCRL trains through HE's agent, whose resume test_checkpoint covers bit for bit: its case is in the slow tier.
+@pytest.mark.parametrize("method", sorted(METHODS) + [pytest.param("gcrl", marks=pytest.mark.slow)])
 def test_each_method_trains_stops_and_resumes_bitwise(method, tmp_path):
     cfg = tiny(method)
     straight = jobs.train(TrainExperiment(config=cfg, run_dir=str(tmp_path / "straight")))
@@ -155,6 +156,7 @@ def test_each_method_trains_stops_and_resumes_bitwise(method, tmp_path):
         assert lines[-1]["dual_lambda"] > 0
 
 
+@pytest.mark.slow  # a second path: METRA's resume is bitwise above, a SIGKILL mid-run is test_checkpoint's (HE)
 def test_sigkill_then_resume_of_a_baseline_is_bitwise_identical(tmp_path):
     args = ["metra-point-mass", "--num-envs", "8", "--hidden", "32", "--batch-size", "32", "--grad-steps", "3",
             "--iterations", "2", "--min-replay", "40", "--epochs", "4"]
