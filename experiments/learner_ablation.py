@@ -39,9 +39,11 @@ LEARNER_OPTIONS: dict[str, dict] = {
     "her-ln-nstep3": dict(her=0.5, critic_layer_norm=True, n_step=3),
     "iter4": dict(solver_iterations=4),
     "her-ln-nstep3-iter4": dict(her=0.5, critic_layer_norm=True, n_step=3, solver_iterations=4),
+    "ln-iter4": dict(critic_layer_norm=True, solver_iterations=4),
 }
 """Variant name -> the learner fields it changes in ant-field-cpu-k1 (``iter4``: the physics solver
-takes 4 iterations instead of the model file's 1, which flips the Ant less often)."""
+takes 4 iterations instead of the model file's 1, which flips the Ant less often; ``ln-iter4``
+adds a LayerNorm critic, against the goal-conditioned critic's loss growing over long runs)."""
 
 STEPS_PER_EPOCH = 6720
 """Environment steps of one ant-field-cpu-k1 epoch: 16 environments x 20 steps x (10 goal-conditioned,
