@@ -21,6 +21,7 @@ import platform
 import resource
 import time
 from pathlib import Path
+from typing import Any, Callable
 
 import jax
 import tyro
@@ -95,40 +96,36 @@ def compiled_epoch(name: str) -> dict:
             "preflight_working_set_bytes": working_set_bytes(agent.cfg, agent.env)}
 
 
-def full_shape_epoch(name: str) -> dict:
-    """One real epoch of a phase-1 preset at its full shape: init and first-epoch seconds (the
-    first epoch includes its compilation), peak resident memory and the epoch's metrics line."""
-    cfg = dataclasses.replace(PRESETS[name][1], epochs=1)
-    agent = make_agent(cfg)
+def one_timed_epoch(init: Callable[[], Any], learner: Any) -> dict:
+    """``init`` and then one ``learner.train_epoch``, each timed to completion (the epoch's time
+    includes its compilation): seconds, peak resident memory and the epoch's metrics line."""
     start = time.perf_counter()
-    state = jax.block_until_ready(agent.init())
+    state = jax.block_until_ready(init())
     init_s = time.perf_counter() - start
     start = time.perf_counter()
-    state, stats = agent.train_epoch(state)
+    state, stats = learner.train_epoch(state)
     jax.block_until_ready(state)
     epoch_s = time.perf_counter() - start
-    metrics = agent.metrics(state, stats, epoch_s)
-    return {"preset": name, "phase": 1, "init_s": init_s, "first_epoch_s": epoch_s, "env_steps": float(state.env_steps.value()),
-            "peak_rss_bytes": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024, "metrics": metrics}
+    return {"init_s": init_s, "first_epoch_s": epoch_s,
+            "peak_rss_bytes": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024,
+            "metrics": learner.metrics(state, stats, epoch_s)}
+
+
+def full_shape_epoch(name: str) -> dict:
+    """One real epoch of a phase-1 preset at its full shape (:func:`one_timed_epoch`)."""
+    agent = make_agent(dataclasses.replace(PRESETS[name][1], epochs=1))
+    timed = one_timed_epoch(agent.init, agent)
+    return {"preset": name, "phase": 1, **timed, "env_steps": timed["metrics"]["env_steps"]}
 
 
 def full_shape_phase2_epoch(name: str) -> dict:
-    """One real phase-2 epoch of a preset at its full shape, over its phase-1 preset's skills as
-    ``init`` makes them (phase 2 freezes them, so their values change nothing it computes or
-    allocates): init and first-epoch seconds (compilation included), peak resident memory and
-    the metrics line."""
+    """One real phase-2 epoch of a preset at its full shape (:func:`one_timed_epoch`), over its
+    phase-1 preset's skills as ``init`` makes them: phase 2 freezes them, so their values
+    change nothing it computes or allocates."""
     _, phase1, cfg = PHASE2_PRESETS[name]
     trainer = make_phase2_trainer(make_agent(PRESETS[phase1][1]), dataclasses.replace(cfg, epochs=1))
-    start = time.perf_counter()
-    state = jax.block_until_ready(trainer.init(trainer.phase1.init()))
-    init_s = time.perf_counter() - start
-    start = time.perf_counter()
-    state, stats = trainer.train_epoch(state)
-    jax.block_until_ready(state)
-    epoch_s = time.perf_counter() - start
-    return {"preset": name, "phase": 2, "skills": phase1, "init_s": init_s, "first_epoch_s": epoch_s,
-            "peak_rss_bytes": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024,
-            "metrics": trainer.metrics(state, stats, epoch_s)}
+    return {"preset": name, "phase": 2, "skills": phase1,
+            **one_timed_epoch(lambda: trainer.init(trainer.phase1.init()), trainer)}
 
 
 def gib(count: float) -> str:
