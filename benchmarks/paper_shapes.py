@@ -6,8 +6,8 @@ preflight's estimate of one epoch's working set, and whether their sum fits the 
 share (the preflight's HEADROOM) of an 80 GB and a 141 GB GPU. ``--epoch PRESET`` also runs
 one real epoch of a phase-1 preset at its full shape on this machine and reports compile
 and epoch time, peak resident memory and the metrics line (on a 2-core CPU this takes long:
-4096 environments); ``--phase2-epoch PRESET`` does the same for a phase-2 preset. Prints a Markdown table and writes JSON (default
-``benchmarks/results/paper_shapes_<backend>.json``).
+4096 environments); ``--phase2-epoch PRESET`` does the same for a phase-2 preset. Prints a
+Markdown table and writes JSON (default ``benchmarks/results/paper_shapes_<backend>.json``).
 
     python benchmarks/paper_shapes.py
     python benchmarks/paper_shapes.py --epoch ant-field-small-k1 --phase2-epoch ant-field-small-k1
