@@ -55,6 +55,12 @@ def top_curve(metrics: list[dict]) -> list[list[float]]:
     return [[m["epoch"], m["env_steps"], m["levels"][-1]["volume"], m["levels"][-1]["success"]] for m in metrics]
 
 
+def critic_loss_curve(metrics: list[dict]) -> list[list[float | None]]:
+    """Per epoch: epoch, then each level's goal-conditioned critic loss, bottom level first (the
+    ``gc_critic_loss`` of a row: whether a learner's critic diverges is read off it)."""
+    return [[m["epoch"], *(level.get("gc_critic_loss") for level in m["levels"])] for m in metrics]
+
+
 def evaluate_run(run_dir: Path, preset: str, seed: int, episodes: int, epoch: int | None = None) -> dict:
     """One JSON row: what the run used and what its top level learned (at ``epoch``, or the newest)."""
     trainer, epoch, state = jobs.load_run(run_dir, epoch=epoch)
@@ -71,6 +77,7 @@ def evaluate_run(run_dir: Path, preset: str, seed: int, episodes: int, epoch: in
         "flip_resets": sum(m.get("flip_resets", 0) for m in metrics),
         "levels": figures["levels"],
         "curve": top_curve(metrics),
+        "gc_critic_loss": critic_loss_curve(metrics),
         "phase2": phase2_of(run_dir, seed, episodes),
         "config": dataclasses.asdict(trainer.cfg),
     }
@@ -94,7 +101,7 @@ def main(args: Args) -> None:
             else:
                 run_dir = Path(args.base) / f"{preset}-s{seed}"
             row = evaluate_run(run_dir, preset, seed, args.episodes, args.at_epoch)
-            print(json.dumps({k: v for k, v in row.items() if k not in ("levels", "curve")}), flush=True)
+            print(json.dumps({k: v for k, v in row.items() if k not in ("levels", "curve", "gc_critic_loss")}), flush=True)
             rows = merge_row(out, row)  # re-reads OUT: a run beside this one may have written rows meanwhile
     print("| preset | seed | env steps | wall s | top area | success | coverage cells |")
     print("|---|---|---|---|---|---|---|")
