@@ -76,6 +76,11 @@ ANT_FIELD_CPU_K1_4ITER = dataclasses.replace(ANT_FIELD_CPU_K1, solver_iterations
 ANT_FIELD_CPU_K2_4ITER = dataclasses.replace(ANT_FIELD_CPU_K2, solver_iterations=4)
 HALF_CHEETAH_CPU_K1_4ITER = dataclasses.replace(HALF_CHEETAH_CPU_K1, solver_iterations=4)
 
+# The accurate-physics Ant presets with a LayerNorm goal-conditioned critic, which keeps the critic
+# from diverging over the full 2.0 M steps (docs/presets.md#the-accurate-physics-presets).
+ANT_FIELD_CPU_K1_4ITER_LN = dataclasses.replace(ANT_FIELD_CPU_K1_4ITER, critic_layer_norm=True)
+ANT_FIELD_CPU_K2_4ITER_LN = dataclasses.replace(ANT_FIELD_CPU_K2_4ITER, critic_layer_norm=True)
+
 PRESETS: dict[str, tuple[str, HEConfig]] = {
     "point-mass-k1": ("CPU default: point mass, one level of n=10 skills", POINT_MASS_K1),
     "point-mass-k2": ("CPU: point mass, two levels n=(10, 5)", POINT_MASS_K2),
@@ -89,6 +94,10 @@ PRESETS: dict[str, tuple[str, HEConfig]] = {
                                ANT_FIELD_CPU_K1_4ITER),
     "ant-field-cpu-k2-4iter": ("CPU: ant-field-cpu-k2 with 4 solver iterations (accurate contacts)",
                                ANT_FIELD_CPU_K2_4ITER),
+    "ant-field-cpu-k1-4iter-ln": ("CPU: ant-field-cpu-k1-4iter with a LayerNorm critic (stays stable to 2.0 M steps)",
+                                  ANT_FIELD_CPU_K1_4ITER_LN),
+    "ant-field-cpu-k2-4iter-ln": ("CPU: ant-field-cpu-k2-4iter with a LayerNorm critic at both levels",
+                                  ANT_FIELD_CPU_K2_4ITER_LN),
     "half-cheetah-cpu-k1-4iter": ("CPU: half-cheetah-cpu-k1 with 4 solver iterations (accurate contacts)",
                                   HALF_CHEETAH_CPU_K1_4ITER),
     "ant-field-cpu-k1-her-ln": ("CPU: ant-field-cpu-k1 with hindsight goals and a LayerNorm critic, 120 epochs",
