@@ -50,6 +50,9 @@ class Args:
     primitive_steps: int = 0
     """Primitive actions per timed call; 0 picks per domain (point mass 400, others 40)."""
     repeats: int = 7
+    solver_iterations: tuple[int, ...] = (0,)
+    """Constraint-solver iterations of the physics, each measured in turn (0: the model file's;
+    ``--solver-iterations 0 4`` gives the cost of the accurate-physics presets)."""
     handover_steps: int = 400
     """Primitive actions per call in the hand-over comparison (0 skips it)."""
     out: str = ""
@@ -120,6 +123,7 @@ def bench_group(env, batch: int, steps: int, args: Args) -> list[dict]:
         over_base = [tb / t for tb, t in zip(times[base_k], times[k])]
         rows.append({
             "env": env.name,
+            "solver_iterations": int(env.model.opt.iterations),
             "batch": batch,
             "k": k,
             "n": list(h.n),
@@ -186,13 +190,15 @@ def bench_handover(args: Args, batch: int = 256) -> list[dict]:
 def markdown(rows: list[dict]) -> str:
     """The results as a Markdown table (ratios are medians of per-round ratios)."""
     lines = [
-        "| env | B | k | raw mjx.step /s | hier useful /s | hier/raw | hier/k=1 | useful frac | compile s |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| env | solver iterations | B | k | raw mjx.step /s | hier useful /s | hier/raw | hier/k=1 | useful frac | "
+        "compile s |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         vs_k1 = f"{r['hier_over_k1']:.2f}" if "hier_over_k1" in r else "-"
         lines.append(
-            f"| {r['env']} | {r['batch']} | {r['k']} | {r['raw_physics_steps_per_s']:,.0f} | "
+            f"| {r['env']} | {r.get('solver_iterations', '-')} | {r['batch']} | {r['k']} | "
+            f"{r['raw_physics_steps_per_s']:,.0f} | "
             f"{r['hier_useful_physics_steps_per_s']:,.0f} | {r['hier_over_raw']:.2f} | {vs_k1} | "
             f"{r['useful_fraction']:.3f} | {r['compile_s_hier']:.1f} |"
         )
@@ -217,14 +223,14 @@ def handover_markdown(rows: list[dict]) -> str:
 def main(args: Args) -> None:
     backend = jax.default_backend()
     rows = []
-    for name in args.envs:
-        env = make_env(name)
+    for name, iterations in [(name, i) for name in args.envs for i in args.solver_iterations]:
+        env = make_env(name, solver_iterations=iterations)
         steps = args.primitive_steps or (400 if name == "point_mass" else 40)
         for batch in args.batch_sizes:
             for row in bench_group(env, batch, steps, args):
                 rows.append(row)
                 print(
-                    f"{name} B={batch} k={row['k']}: raw {row['raw_physics_steps_per_s']:,.0f}/s, "
+                    f"{name} iterations={row['solver_iterations']} B={batch} k={row['k']}: raw {row['raw_physics_steps_per_s']:,.0f}/s, "
                     f"hier {row['hier_useful_physics_steps_per_s']:,.0f}/s "
                     f"({row['hier_over_raw']:.2f}x), useful {row['useful_fraction']:.3f}, "
                     f"compile {row['compile_s_hier']:.1f}s",
