@@ -136,7 +136,9 @@ def main(args: Args) -> None:
     out = Path(args.out or f"benchmarks/results/time_to_quality_{jax.default_backend()}.json")
     rows = json.loads(out.read_text())["rows"] if out.exists() else []
     if args.curves:
-        found = [r for r in from_curves(args) if r["setting"] == "curriculum"]
+        # One row per (preset, seed, source): a run evaluated at two budgets stores its curve twice.
+        found = list({(r["preset"], r["seed"], r["source"]): r
+                      for r in from_curves(args) if r["setting"] == "curriculum"}.values())
         for row in found:
             row["target"] = {"volume": args.target_volume, "success": args.target_success, "window": args.window}
             print(json.dumps(row), flush=True)
