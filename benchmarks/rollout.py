@@ -230,7 +230,8 @@ def main(args: Args) -> None:
             for row in bench_group(env, batch, steps, args):
                 rows.append(row)
                 print(
-                    f"{name} iterations={row['solver_iterations']} B={batch} k={row['k']}: raw {row['raw_physics_steps_per_s']:,.0f}/s, "
+                    f"{name} iterations={row['solver_iterations']} B={batch} k={row['k']}: "
+                    f"raw {row['raw_physics_steps_per_s']:,.0f}/s, "
                     f"hier {row['hier_useful_physics_steps_per_s']:,.0f}/s "
                     f"({row['hier_over_raw']:.2f}x), useful {row['useful_fraction']:.3f}, "
                     f"compile {row['compile_s_hier']:.1f}s",

@@ -101,7 +101,8 @@ def main(args: Args) -> None:
             else:
                 run_dir = Path(args.base) / f"{preset}-s{seed}"
             row = evaluate_run(run_dir, preset, seed, args.episodes, args.at_epoch)
-            print(json.dumps({k: v for k, v in row.items() if k not in ("levels", "curve", "gc_critic_loss")}), flush=True)
+            summary = {k: v for k, v in row.items() if k not in ("levels", "curve", "gc_critic_loss")}
+            print(json.dumps(summary), flush=True)
             rows = merge_row(out, row)  # re-reads OUT: a run beside this one may have written rows meanwhile
     print("| preset | seed | env steps | wall s | top area | success | coverage cells |")
     print("|---|---|---|---|---|---|---|")

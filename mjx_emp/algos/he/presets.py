@@ -94,7 +94,8 @@ PRESETS: dict[str, tuple[str, HEConfig]] = {
                                ANT_FIELD_CPU_K1_4ITER),
     "ant-field-cpu-k2-4iter": ("CPU: ant-field-cpu-k2 with 4 solver iterations (accurate contacts)",
                                ANT_FIELD_CPU_K2_4ITER),
-    "ant-field-cpu-k1-4iter-ln": ("CPU: ant-field-cpu-k1-4iter with a LayerNorm critic (its success holds to 2.0 M steps on seed 0)",
+    "ant-field-cpu-k1-4iter-ln": ("CPU: ant-field-cpu-k1-4iter with a LayerNorm critic (on seed 0 its success holds "
+                                  "to 2.0 M steps)",
                                   ANT_FIELD_CPU_K1_4ITER_LN),
     "ant-field-cpu-k2-4iter-ln": ("CPU: ant-field-cpu-k2-4iter with a LayerNorm critic at both levels",
                                   ANT_FIELD_CPU_K2_4ITER_LN),
