@@ -152,7 +152,8 @@ def main(args: Args) -> None:
                     jobs.train(TrainExperiment(config=config, run_dir=str(run_dir)))
             row = {"variant": variant, "setting": args.setting,
                    **evaluate_run(run_dir, "ant-field-cpu-k1", seed, args.episodes, args.at_epoch)}
-            print(json.dumps({k: v for k, v in row.items() if k not in ("levels", "curve", "gc_critic_loss", "config")}), flush=True)
+            summary = {k: v for k, v in row.items() if k not in ("levels", "curve", "gc_critic_loss", "config")}
+            print(json.dumps(summary), flush=True)
             merge_row(out, row, key=("variant", "setting", "seed", "env_steps"))
     rows = json.loads(out.read_text())["rows"]
     print(table(rows))
