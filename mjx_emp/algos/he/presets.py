@@ -77,7 +77,7 @@ ANT_FIELD_CPU_K2_4ITER = dataclasses.replace(ANT_FIELD_CPU_K2, solver_iterations
 HALF_CHEETAH_CPU_K1_4ITER = dataclasses.replace(HALF_CHEETAH_CPU_K1, solver_iterations=4)
 
 # The accurate-physics Ant presets with a LayerNorm goal-conditioned critic, which keeps the critic
-# from diverging over the full 2.0 M steps (docs/presets.md#the-accurate-physics-presets).
+# from collapsing over the full 2.0 M steps (docs/presets.md#the-accurate-physics-presets).
 ANT_FIELD_CPU_K1_4ITER_LN = dataclasses.replace(ANT_FIELD_CPU_K1_4ITER, critic_layer_norm=True)
 ANT_FIELD_CPU_K2_4ITER_LN = dataclasses.replace(ANT_FIELD_CPU_K2_4ITER, critic_layer_norm=True)
 
