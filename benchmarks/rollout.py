@@ -15,6 +15,7 @@ Prints a Markdown table and writes JSON (default ``benchmarks/results/rollout_<b
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import json
 import math
 import platform
@@ -197,7 +198,7 @@ def markdown(rows: list[dict]) -> str:
     for r in rows:
         vs_k1 = f"{r['hier_over_k1']:.2f}" if "hier_over_k1" in r else "-"
         lines.append(
-            f"| {r['env']} | {r.get('solver_iterations', '-')} | {r['batch']} | {r['k']} | "
+            f"| {r['env']} | {r['solver_iterations']} | {r['batch']} | {r['k']} | "
             f"{r['raw_physics_steps_per_s']:,.0f} | "
             f"{r['hier_useful_physics_steps_per_s']:,.0f} | {r['hier_over_raw']:.2f} | {vs_k1} | "
             f"{r['useful_fraction']:.3f} | {r['compile_s_hier']:.1f} |"
@@ -223,7 +224,7 @@ def handover_markdown(rows: list[dict]) -> str:
 def main(args: Args) -> None:
     backend = jax.default_backend()
     rows = []
-    for name, iterations in [(name, i) for name in args.envs for i in args.solver_iterations]:
+    for name, iterations in itertools.product(args.envs, args.solver_iterations):
         env = make_env(name, solver_iterations=iterations)
         steps = args.primitive_steps or (400 if name == "point_mass" else 40)
         for batch in args.batch_sizes:
