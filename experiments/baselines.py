@@ -54,6 +54,12 @@ class Args:
     """Where the charts go (baselines_<env>.png); empty draws none."""
     report_only: bool = False
     """Train and evaluate nothing: print the table and draw the charts of the rows in ``--out``."""
+    include: tuple[str, ...] = ()
+    """Result files whose rows join the table and charts (read, never written), e.g. the
+    baselines' rows beside an equal-budget file's."""
+    env_steps: float | None = None
+    """Report only rows within 1 % of this many phase-1 env steps (an equal-budget table);
+    None reports every row."""
     goal_half_width: float | None = None
     """GCRL presets only: a hand-set box of this half-width (m) instead of the preset's; runs
     go to BASE/<preset>-w<width>-s<seed> and rows are named <preset>-w<width>."""
@@ -138,6 +144,36 @@ def merge_row(out: Path, row: dict, key: tuple[str, ...] = ("preset", "seed")) -
     return rows
 
 
+def rows_at_budget(rows: list[dict], env_steps: float | None, tolerance: float = 0.01) -> list[dict]:
+    """The rows trained for ENV_STEPS phase-1 env steps, within ``tolerance`` of it (epochs of
+    different methods hold different numbers of steps); every row when ENV_STEPS is None."""
+    if env_steps is None:
+        return rows
+    return [r for r in rows if abs(r["env_steps"] - env_steps) <= tolerance * env_steps]
+
+
+def report_table(rows: list[dict]) -> str:
+    """A Markdown table of ROWS by preset: seeds, env steps, wall time, coverage and phase 2's
+    mean min distance, each as mean ± std (standard error)."""
+    def cell(values: list[float], digits: str = ".3g") -> str:
+        if not values:
+            return "-"
+        m = mean_and_stderr(values)
+        return f"{m['mean']:{digits}} ± {m['std']:.2g} ({m['stderr']:.2g})"
+
+    lines = ["| preset | seeds | env steps | wall s (mean) | coverage cells | posterior std | "
+             "phase-2 min distance (m) | phase-2 success |", "|---|---|---|---|---|---|---|---|"]
+    for preset in dict.fromkeys(r["preset"] for r in rows):
+        mine = [r for r in rows if r["preset"] == preset]
+        stds = [r["posterior_std"] for r in mine if r["posterior_std"] is not None]
+        done = [r for r in mine if r.get("phase2_min_distance") is not None]
+        lines.append(
+            f"| {preset} | {len(mine)} | {mine[0]['env_steps']:.4g} | {np.mean([r['wall_s'] for r in mine]):.0f} "
+            f"| {cell([r['coverage_cells'] for r in mine])} | {f'{np.mean(stds):.3g}' if stds else '-'} "
+            f"| {cell([r['phase2_min_distance'] for r in done])} | {cell([r['phase2_success'] for r in done], '.2f')} |")
+    return "\n".join(lines)
+
+
 def main(args: Args) -> None:
     out = Path(args.out)
     rows = json.loads(out.read_text())["rows"] if out.exists() else []
@@ -149,19 +185,10 @@ def main(args: Args) -> None:
             row = evaluate_run(run_dir, variant_name(preset, args.goal_half_width), seed)
             print(json.dumps(row), flush=True)
             rows = merge_row(out, row)
-    print("| preset | seeds | env steps | wall s (mean) | coverage cells, mean ± std | posterior std | "
-          "phase-2 min distance, mean ± std |")
-    print("|---|---|---|---|---|---|---|")
-    for preset in dict.fromkeys(r["preset"] for r in rows):
-        mine = [r for r in rows if r["preset"] == preset]
-        cells = mean_and_stderr([r["coverage_cells"] for r in mine])
-        stds = [r["posterior_std"] for r in mine if r["posterior_std"] is not None]
-        std = f"{mean_and_stderr(stds)['mean']:.3g}" if stds else "-"
-        distances = [r["phase2_min_distance"] for r in mine if r.get("phase2_min_distance") is not None]
-        p2 = mean_and_stderr(distances) if distances else None
-        p2_text = f"{p2['mean']:.3g} ± {p2['std']:.2g} ({len(distances)})" if p2 else "-"
-        print(f"| {preset} | {len(mine)} | {mine[0]['env_steps']:.3g} | {sum(r['wall_s'] for r in mine) / len(mine):.0f} "
-              f"| {cells['mean']:.3g} ± {cells['std']:.2g} | {std} | {p2_text} |")
+    for extra in args.include:
+        rows = rows + json.loads(Path(extra).read_text())["rows"]
+    rows = rows_at_budget(rows, args.env_steps)
+    print(report_table(rows))
     if not args.report_only:
         print(f"wrote {out}")
     if args.charts:

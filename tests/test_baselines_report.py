@@ -1,0 +1,23 @@
+"""The comparison table of experiments/baselines.py: rows at one budget, mean ± std (stderr)."""
+
+from baselines import report_table, rows_at_budget
+
+
+def _row(preset, seed, steps, cells, distance):
+    return {"preset": preset, "seed": seed, "env_steps": steps, "wall_s": 10.0, "coverage_cells": cells,
+            "posterior_std": None, "phase2_min_distance": distance, "phase2_success": 0.5}
+
+
+def test_rows_at_budget_keeps_rows_within_one_percent():
+    rows = [_row("a", 0, 960_000.0, 4, 1.0), _row("b", 0, 960_960.0, 4, 1.0), _row("c", 0, 2_016_000.0, 4, 1.0)]
+    assert [r["preset"] for r in rows_at_budget(rows, 960_000.0)] == ["a", "b"]
+    assert rows_at_budget(rows, None) == rows
+
+
+def test_report_table_gives_mean_std_and_standard_error_per_preset():
+    rows = [_row("a", 0, 1e6, 2, 10.0), _row("a", 1, 1e6, 6, 12.0), _row("b", 0, 1e6, 5, None)]
+    lines = report_table(rows).splitlines()
+    a_line = next(line for line in lines if line.startswith("| a |"))
+    assert "| 2 |" in a_line and "4 ± 2.8 (2)" in a_line and "11 ± 1.4 (1)" in a_line
+    b_line = next(line for line in lines if line.startswith("| b |"))
+    assert b_line.endswith("| - | - |")  # no phase 2 trained
