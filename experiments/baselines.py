@@ -170,7 +170,8 @@ def report_table(rows: list[dict]) -> str:
         lines.append(
             f"| {preset} | {len(mine)} | {mine[0]['env_steps']:.4g} | {np.mean([r['wall_s'] for r in mine]):.0f} "
             f"| {cell([r['coverage_cells'] for r in mine])} | {f'{np.mean(stds):.3g}' if stds else '-'} "
-            f"| {cell([r['phase2_min_distance'] for r in done])} | {cell([r['phase2_success'] for r in done], '.2f')} |")
+            f"| {cell([r['phase2_min_distance'] for r in done])} "
+            f"| {cell([r['phase2_success'] for r in done], '.2f')} |")
     return "\n".join(lines)
 
 
