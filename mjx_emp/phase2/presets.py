@@ -37,6 +37,11 @@ def _robot_phase2(n: int, eps: float, length: float, dims: int, ahead: float = 0
 _ANT_SMALL_TASK = _robot_phase2(10, 1.8, 40, 2)
 _CHEETAH_SMALL_TASK = _robot_phase2(10, 3.0, 95, 1, ahead=0.1)
 
+# The cages on a CPU: goals in a square (Ant) or on a track (Half Cheetah) twice as wide as the
+# cage, centred on the start, so most of them lie beyond the walls and need the button first.
+_ANT_CAGE_TASK = _robot_phase2(10, 1.8, 16, 2)
+_CHEETAH_CAGE_TASK = _robot_phase2(10, 3.0, 32, 1)
+
 _POINT_MASS_PHASE2 = Phase2Config(n=3, eps=0.6, sigma=0.6, region=(2.4, 2.4), region_offset=(0.0, 0.0), epochs=30)
 
 PHASE2_PRESETS: dict[str, tuple[str, str, Phase2Config]] = {
@@ -62,6 +67,10 @@ PHASE2_PRESETS: dict[str, tuple[str, str, Phase2Config]] = {
                             "half-cheetah-cpu-k1", _CHEETAH_SMALL_TASK),
     "half-cheetah-cpu-k2": ("CPU: Table 2's Half Cheetah Small task for the two-level agent",
                             "half-cheetah-cpu-k2", _CHEETAH_SMALL_TASK),
+    "ant-cage-cpu-k1": ("CPU: goals in a 16 x 16 m square around the 8 x 8 m cage, 10 attempts, eps 1.8",
+                        "ant-cage-cpu-k1", _ANT_CAGE_TASK),
+    "half-cheetah-cage-cpu-k1": ("CPU: goals on 32 m of track around the 16 m cage, 10 attempts, eps 3.0",
+                                 "half-cheetah-cage-cpu-k1", _CHEETAH_CAGE_TASK),
     "ant-field-small-k1": ("Table 2: Ant Field Small, k=1", "ant-field-small-k1", _phase2(10, 1.8, 40, 2)),
     "ant-field-big-k1": ("Table 2: Ant Field Big, k=1", "ant-field-big-k1", _phase2(25, 2.4, 200, 2)),
     "ant-field-big-k2": ("Table 2: Ant Field Big, k=2", "ant-field-big-k2", _phase2(10, 2.4, 200, 2)),

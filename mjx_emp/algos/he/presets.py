@@ -81,6 +81,11 @@ HALF_CHEETAH_CPU_K1_4ITER = dataclasses.replace(HALF_CHEETAH_CPU_K1, solver_iter
 ANT_FIELD_CPU_K1_4ITER_LN = dataclasses.replace(ANT_FIELD_CPU_K1_4ITER, critic_layer_norm=True)
 ANT_FIELD_CPU_K2_4ITER_LN = dataclasses.replace(ANT_FIELD_CPU_K2_4ITER, critic_layer_norm=True)
 
+# The cages at CPU scale: the best CPU learner of each robot's field, in its Table-1 cage
+# (docs/presets.md#the-cages-on-a-cpu).
+ANT_CAGE_CPU_K1 = dataclasses.replace(ANT_FIELD_CPU_K1_4ITER_LN, env="ant_cage")
+HALF_CHEETAH_CAGE_CPU_K1 = dataclasses.replace(HALF_CHEETAH_CPU_K1, env="half_cheetah_cage")
+
 PRESETS: dict[str, tuple[str, HEConfig]] = {
     "point-mass-k1": ("CPU default: point mass, one level of n=10 skills", POINT_MASS_K1),
     "point-mass-k2": ("CPU: point mass, two levels n=(10, 5)", POINT_MASS_K2),
@@ -103,6 +108,10 @@ PRESETS: dict[str, tuple[str, HEConfig]] = {
                                   HALF_CHEETAH_CPU_K1_4ITER),
     "ant-field-cpu-k1-her-ln": ("CPU: ant-field-cpu-k1 with hindsight goals and a LayerNorm critic, 120 epochs",
                                 ANT_FIELD_CPU_K1_HER_LN),
+    "ant-cage-cpu-k1": ("CPU: ant-field-cpu-k1-4iter-ln in the Ant Cage (8 x 8 m walls, a button that opens them)",
+                        ANT_CAGE_CPU_K1),
+    "half-cheetah-cage-cpu-k1": ("CPU: half-cheetah-cpu-k1 in the Half Cheetah Cage (walls 8 m ahead and behind, "
+                                 "a button that opens them)", HALF_CHEETAH_CAGE_CPU_K1),
     "ant-field-small-k1": ("Table 1: Ant Field Small, k=1",
                            _paper("ant_field", (20,), (0.4,), (1.75,), (0.6,), 1220, (10.0,))),
     "ant-field-big-k1": ("Table 1: Ant Field Big, k=1",

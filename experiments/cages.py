@@ -1,0 +1,108 @@
+"""Hierarchical Empowerment in the cages on a CPU: does the goal space follow the walls and the button?
+
+For every (preset, seed) (``ant-cage-cpu-k1``, ``half-cheetah-cage-cpu-k1``) trains phase 1
+and phase 2 as ``baselines.py`` does (or resumes BASE/<preset>-s<seed>) and writes
+``robots_cpu.py``'s row (top box, success, coverage, the box's growth per epoch in ``curve``,
+phase 2) with ``cage``: the walls' inner bounds and the button, and the top goal-space box in
+absolute goal-space coordinates at three states: the start with the walls standing, the start
+with them gone, and on the button (where pressing it leaves them gone). Each box says whether
+it lies within the walls and whether it holds the button, so one reads off what the paper's
+cage figures show: a box bounded by the walls that reaches toward the button, and one that
+outgrows the walls once they open.
+``python experiments/cages.py --presets ant-cage-cpu-k1 --seeds 0``; rows merge into ``--out``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
+import tyro
+from baselines import merge_row, train_or_resume, train_phase2
+from robots_cpu import evaluate_run
+
+from mjx_emp.run import jobs
+
+
+@dataclasses.dataclass
+class Args:
+    """Cage presets over seeds: phase 1, phase 2 and where the top box lies."""
+
+    presets: tuple[str, ...] = ("ant-cage-cpu-k1", "half-cheetah-cage-cpu-k1")
+    seeds: tuple[int, ...] = (0,)
+    epochs: int | None = None
+    """Override the presets' epoch counts (a shorter budget); None keeps them."""
+    phase2: bool = True
+    """Also train phase 2 on the run's skills (the cage's CPU task)."""
+    episodes: int = 400
+    base: str = "runs/cages"
+    out: str = "benchmarks/results/cages_cpu.json"
+
+
+def wall_bounds(wall_positions: np.ndarray, dims: int) -> tuple[list[float], list[float]]:
+    """The walls' inner bounds per goal dimension, from the wall bodies' positions (each wall
+    stands off the origin along one axis): (lower, upper), +-inf where no wall bounds that side."""
+    lower, upper = [], []
+    for d in range(dims):
+        along = wall_positions[:, d]
+        lower.append(float(along[along < 0].max()) if (along < 0).any() else -np.inf)
+        upper.append(float(along[along > 0].min()) if (along > 0).any() else np.inf)
+    return lower, upper
+
+
+def absolute_box(box: dict, position: np.ndarray, walls: tuple[list[float], list[float]],
+                 button_center: np.ndarray, button_half_size: np.ndarray) -> dict:
+    """A goal-space box (shift and half-widths about the state's h(s)) in absolute coordinates,
+    with whether it lies within the walls and whether it overlaps the button."""
+    centre = position + np.asarray(box["shift"])
+    half = np.asarray(box["half_width"])
+    lower, upper = centre - half, centre + half
+    return {"lower": lower.tolist(), "upper": upper.tolist(), "volume": box["volume"],
+            "within_walls": bool(np.all(lower >= walls[0]) and np.all(upper <= walls[1])),
+            "overlaps_button": bool(np.all(lower <= button_center + button_half_size)
+                                    and np.all(upper >= button_center - button_half_size))}
+
+
+def cage_figures(agent, state) -> dict:
+    """The cage and the agent's top box at the start (walls up), at the start with the walls
+    gone, and on the button (walls gone), in absolute goal-space coordinates."""
+    env, cage = agent.env, agent.env.cage
+    if cage is None:
+        raise SystemExit(f"presets: {agent.cfg.env!r} has no cage; give a cage preset")
+    dims = np.asarray(env.goal_qpos)
+    walls = wall_bounds(np.asarray(env.home_mocap_pos)[list(cage.wall_mocap_ids)], len(dims))
+    centre, half_size = np.asarray(cage.button_center), np.asarray(cage.button_half_size)
+    start = np.asarray(agent.initial_obs)
+    opened = start.copy()
+    opened[-1] = 1.0  # the observation's last entry: whether the walls are gone
+    on_button = opened.copy()
+    on_button[dims] = centre
+    boxes = {}
+    for name, obs in (("start_closed", start), ("start_open", opened), ("on_button", on_button)):
+        top = agent.goal_spaces(state, obs)[-1]
+        boxes[name] = absolute_box(top, obs[dims], walls, centre, half_size)
+    return {"walls_lower": walls[0], "walls_upper": walls[1], "button_center": centre.tolist(),
+            "button_half_size": half_size.tolist(), "boxes": boxes}
+
+
+def main(args: Args) -> None:
+    out = Path(args.out)
+    for preset in args.presets:
+        for seed in args.seeds:
+            run_dir = train_or_resume(Path(args.base), preset, seed, args.epochs)
+            if args.phase2:
+                train_phase2(run_dir)
+            agent, _, state = jobs.load_run(run_dir)
+            row = {**evaluate_run(run_dir, preset, seed, args.episodes), "cage": cage_figures(agent, state)}
+            merge_row(out, row)
+            cage = row["cage"]
+            print(json.dumps({"preset": preset, "seed": seed, "env_steps": row["env_steps"],
+                              "top_area": row["top_area"], "success": row["success"],
+                              "phase2": row["phase2"] and row["phase2"]["min_distance"], **cage}), flush=True)
+    print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+    main(tyro.cli(Args))
