@@ -227,7 +227,8 @@ def curve_of(row: dict) -> tuple[np.ndarray, np.ndarray] | None:
 
 def draw_charts(rows: list[dict], path: Path) -> Path:
     """The paper's Fig. 3-style chart (phase-2 mean min distance against phase-2 steps, mean
-    over seeds with a std band; where no row keeps its curve, the final distances as bars)
+    over seeds with a std band; a method whose rows keep no curve as a dashed line at its final
+    distance, and where no row keeps one, the final distances as bars)
     beside a coverage bar chart (mean ± std over seeds); one colour and name per method."""
     import matplotlib
 
@@ -245,7 +246,11 @@ def draw_charts(rows: list[dict], path: Path) -> Path:
     curves = {p: [c for c in map(curve_of, seeds[p]) if c is not None] for p in presets}
     if any(curves.values()):
         for preset, label, colour in zip(presets, labels, colours):
-            if not curves[preset]:
+            if not curves[preset]:  # rows without their curve: the final distance as a dashed level
+                finals = [r["phase2_min_distance"] for r in seeds[preset] if r["phase2_min_distance"] is not None]
+                if finals:
+                    phase2.axhline(np.mean(finals), color=colour, linestyle="--",
+                                   label=f"{label} (n={len(finals)}, final only)")
                 continue
             band = seed_band(curves[preset])
             phase2.plot(band["steps"], band["mean"], color=colour, label=f"{label} (n={band['count']})")

@@ -21,3 +21,13 @@ def test_report_table_gives_mean_std_and_standard_error_per_preset():
     assert "| 2 |" in a_line and "4 ± 2.8 (2)" in a_line and "11 ± 1.4 (1)" in a_line
     b_line = next(line for line in lines if line.startswith("| b |"))
     assert b_line.endswith("| - | - |")  # no phase 2 trained
+
+
+def test_charts_draw_methods_with_and_without_phase2_curves(tmp_path):
+    from baselines import draw_charts
+
+    with_curve = {**_row("ant-field-cpu-k1", 0, 1e6, 12, 12.0), "env": "ant_field",
+                  "phase2_curve": [[0.0, 15.0], [1000.0, 12.0]]}
+    without = {**_row("metra-ant-field-cpu", 0, 1e6, 8, 14.0), "env": "ant_field", "run_dir": str(tmp_path / "gone")}
+    path = draw_charts([with_curve, without], tmp_path / "chart.png")
+    assert path.exists() and path.stat().st_size > 10_000
