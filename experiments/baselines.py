@@ -60,6 +60,9 @@ class Args:
     env_steps: float | None = None
     """Report only rows within 1 % of this many phase-1 env steps (an equal-budget table);
     None reports every row."""
+    budget_tolerance: float = 0.01
+    """How far (a fraction of ``--env-steps``) a row's env steps may be from the budget: a
+    two-level run's epochs hold different numbers of steps, so its epoch count only comes near."""
     goal_half_width: float | None = None
     """GCRL presets only: a hand-set box of this half-width (m) instead of the preset's; runs
     go to BASE/<preset>-w<width>-s<seed> and rows are named <preset>-w<width>."""
@@ -188,7 +191,7 @@ def main(args: Args) -> None:
             rows = merge_row(out, row)
     for extra in args.include:
         rows = rows + json.loads(Path(extra).read_text())["rows"]
-    rows = rows_at_budget(rows, args.env_steps)
+    rows = rows_at_budget(rows, args.env_steps, args.budget_tolerance)
     print(report_table(rows))
     if not args.report_only:
         print(f"wrote {out}")
