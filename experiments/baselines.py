@@ -58,8 +58,8 @@ class Args:
     """Result files whose rows join the table and charts (read, never written), e.g. the
     baselines' rows beside an equal-budget file's."""
     env_steps: float | None = None
-    """Report only rows within 1 % of this many phase-1 env steps (an equal-budget table);
-    None reports every row."""
+    """Report only rows within ``--budget-tolerance`` of this many phase-1 env steps (an
+    equal-budget table); None reports every row."""
     budget_tolerance: float = 0.01
     """How far (a fraction of ``--env-steps``) a row's env steps may be from the budget: a
     two-level run's epochs hold different numbers of steps, so its epoch count only comes near."""
