@@ -46,6 +46,9 @@ class Args:
     seeds: tuple[int, ...] = (0, 1, 2, 3)
     epochs: int | None = None
     """Override the presets' epoch counts; None keeps them."""
+    max_env_steps: int | None = None
+    """Stop every run at the end of its first epoch that reaches this many env steps (the
+    epoch count stays the ceiling): one budget for methods whose epochs differ in size."""
     phase2: bool = True
     """Also train phase 2 (the domain's CPU task, `mjx-emp phase2 RUN_DIR`) on every run's skills."""
     base: str = "runs/baselines"
@@ -74,22 +77,24 @@ def variant_name(preset: str, goal_half_width: float | None) -> str:
 
 
 def train_or_resume(base: Path, preset: str, seed: int, epochs: int | None,
-                    goal_half_width: float | None = None) -> Path:
-    """The run directory of (preset, seed), trained to its epoch count (with GCRL's box
-    half-width replaced when ``goal_half_width`` is given)."""
+                    goal_half_width: float | None = None, max_env_steps: int | None = None) -> Path:
+    """The run directory of (preset, seed), trained to its epoch count or ``max_env_steps``
+    (with GCRL's box half-width replaced when ``goal_half_width`` is given)."""
     presets = all_presets()
     if preset not in presets:
         raise SystemExit(f"presets: {preset!r} is unknown; allowed values: {sorted(presets)}")
     config = dataclasses.replace(presets[preset][1], seed=seed)
     if epochs is not None:
         config = dataclasses.replace(config, epochs=epochs)
+    if max_env_steps is not None:
+        config = dataclasses.replace(config, max_env_steps=max_env_steps)
     if goal_half_width is not None:
         if not hasattr(config, "goal_half_width"):
             raise SystemExit(f"goal_half_width: only GCRL presets have a hand-set box; {preset!r} is not one")
         config = dataclasses.replace(config, goal_half_width=(goal_half_width,) * len(config.goal_half_width))
     run_dir = base / f"{variant_name(preset, goal_half_width)}-s{seed}"
     if (run_dir / store.CONFIG_FILE).exists():
-        jobs.resume(ResumeExperiment(resume=str(run_dir), epochs=config.epochs))
+        jobs.resume(ResumeExperiment(resume=str(run_dir), epochs=config.epochs, max_env_steps=max_env_steps))
     else:
         jobs.train(TrainExperiment(config=config, run_dir=str(run_dir)))
     return run_dir
@@ -183,7 +188,8 @@ def main(args: Args) -> None:
     rows = json.loads(out.read_text())["rows"] if out.exists() else []
     for preset in [] if args.report_only else args.presets:
         for seed in args.seeds:
-            run_dir = train_or_resume(Path(args.base), preset, seed, args.epochs, args.goal_half_width)
+            run_dir = train_or_resume(Path(args.base), preset, seed, args.epochs, args.goal_half_width,
+                                      args.max_env_steps)
             if args.phase2:
                 train_phase2(run_dir)
             row = evaluate_run(run_dir, variant_name(preset, args.goal_half_width), seed)

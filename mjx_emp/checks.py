@@ -30,9 +30,9 @@ def check_levels(n: Sequence[int], eps: Sequence[float], k: int | None = None) -
 
 
 def check_counts(cfg, names: tuple[str, ...]) -> None:
-    """Every named field (a count or size) is >= 1."""
+    """Every named field (a count or size) is >= 1; one that is None is unset (a limit not asked for)."""
     for name in names:
-        if getattr(cfg, name) < 1:
+        if getattr(cfg, name) is not None and getattr(cfg, name) < 1:
             raise ConfigError(f"{name}: must be >= 1; got {getattr(cfg, name)}")
 
 
@@ -81,11 +81,18 @@ def check_learning(cfg, learning_rates: tuple[str, ...], noises: tuple[str, ...]
             raise ConfigError(f"{name}: must be >= 0; got {getattr(cfg, name)}")
 
 
+LOOP_FIELDS = ("epochs", "max_env_steps")
+"""Config fields only the epoch loop reads (when to stop): a resume may change them, and compiled
+programs never see them."""
+
+
 def compile_identity(cfg):
-    """A config as far as compiled programs see it: every field but ``epochs``, which only the
-    epoch loop reads. Agents compare and hash by it, so a run resumed with a new epoch count
-    (or one trained for another) reuses the programs already compiled in the process."""
-    return dataclasses.replace(cfg, epochs=0) if any(f.name == "epochs" for f in dataclasses.fields(cfg)) else cfg
+    """A config as far as compiled programs see it: every field but the :data:`LOOP_FIELDS`.
+    Agents compare and hash by it, so a run resumed with a new epoch count or step budget (or
+    one trained for another) reuses the programs already compiled in the process."""
+    names = {f.name for f in dataclasses.fields(cfg)}
+    return dataclasses.replace(cfg, **{name: None if name == "max_env_steps" else 0
+                                       for name in LOOP_FIELDS if name in names})
 
 
 def matches_type(value, annotation) -> bool:

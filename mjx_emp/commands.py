@@ -86,7 +86,10 @@ class ResumeExperiment:
     resume: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="RUN_DIR")]
     """Run directory written by `mjx-emp train`, or a phase-2 directory written by `mjx-emp phase2`."""
     epochs: int | None = None
-    """New total number of epochs (default: the run's own). The only setting a resume may change."""
+    """New total number of epochs (default: the run's own)."""
+    max_env_steps: int | None = None
+    """New environment-step budget (default: the run's own; 0 lifts it). With ``epochs``, the
+    only settings a resume may change: neither alters what an epoch computes."""
     fallback: bool = False
     """If the newest checkpoint is unusable, resume from the newest one that restores."""
     keep_checkpoints: int = 3
@@ -253,6 +256,16 @@ def check_resume(exp: ResumeExperiment) -> None:
     _check_tracking(exp.tracking)
     if exp.epochs is not None and exp.epochs < 1:
         raise ConfigError(f"epochs: must be >= 1; got {exp.epochs}")
+    if exp.max_env_steps is not None and exp.max_env_steps < 0:
+        raise ConfigError(f"max_env_steps: must be >= 1, or 0 to lift the run's budget; got {exp.max_env_steps}")
+
+
+def resumed_stops(exp: ResumeExperiment) -> dict:
+    """The loop fields (``epochs``, ``max_env_steps``) a resume replaces in the run's config."""
+    stops = {} if exp.epochs is None else {"epochs": exp.epochs}
+    if exp.max_env_steps is not None:
+        stops["max_env_steps"] = exp.max_env_steps or None
+    return stops
 
 
 def check_phase2(exp: Phase2Experiment) -> None:

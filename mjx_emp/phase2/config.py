@@ -35,6 +35,10 @@ class Phase2Config:
     reward, with its own width (the paper leaves phase 2's reward open)."""
     epochs: int = 30
     """Training epochs (each: ``iterations`` x (collect, update), then a greedy evaluation)."""
+    max_env_steps: int | None = None
+    """Stop at the end of the first epoch whose total environment steps reach this many (with
+    ``--seeds``, once every seed has): one budget for methods whose epochs hold different
+    numbers of steps. None: train all ``epochs``."""
     num_envs: int = 64
     """Environments simulated in parallel."""
     iterations: int = 10
@@ -65,7 +69,7 @@ class Phase2Config:
     """Seed of phase 2's randomness."""
 
 
-_P2_POSITIVE = ("n", "epochs", "num_envs", "iterations", "grad_steps", "batch_size",
+_P2_POSITIVE = ("n", "epochs", "max_env_steps", "num_envs", "iterations", "grad_steps", "batch_size",
                 "replay_capacity", "eval_rounds")
 
 

@@ -9,6 +9,7 @@ import dataclasses
 
 from mjx_emp.algos.he.presets import PRESETS
 from mjx_emp.algos.registry import LATENT_SKILLS, skill_kind
+from mjx_emp.checks import LOOP_FIELDS
 from mjx_emp.phase2.config import Phase2Config
 
 # ---- phase 2 -------------------------------------------------------------------------
@@ -93,12 +94,13 @@ PHASE2_PRESETS: dict[str, tuple[str, str, Phase2Config]] = {
 
 def phase2_preset_for(skills) -> str | None:
     """The phase-2 preset for a run trained with ``skills``: the one built on the phase-1
-    preset it was trained with (seed and epochs aside), else the first one built on a
+    preset it was trained with (seed and when it stops aside), else the first one built on a
     preset with its domain, n and number of environments (GPU or CPU scale), else the first
     with its domain and n, else None. A flat skill learner's run gets its domain's one-level
     task at its scale (the skills there are as long as HE's k=1 skills)."""
     def same_preset(base) -> bool:
-        return dataclasses.replace(base, seed=skills.seed, epochs=skills.epochs) == skills
+        stops = {name: getattr(skills, name) for name in LOOP_FIELDS}
+        return dataclasses.replace(base, seed=skills.seed, **stops) == skills
 
     candidates = [(name, PRESETS[phase1][1]) for name, (_, phase1, _) in PHASE2_PRESETS.items()]
     if skill_kind(skills) == LATENT_SKILLS:  # a flat skill learner: the one-level task of its domain and scale

@@ -28,12 +28,12 @@ import jax.numpy as jnp
 import numpy as np
 import orbax.checkpoint as ocp
 
-from mjx_emp.checks import config_from_dict
+from mjx_emp.checks import LOOP_FIELDS, config_from_dict
 from mjx_emp.counters import digits
 from mjx_emp.errors import CheckpointError, CheckpointWriteError
 from mjx_emp.run.store import CHECKPOINT_SUBDIR, REJECTED_SUBDIR
 
-RESUMABLE_CHANGES = ("epochs",)
+RESUMABLE_CHANGES = LOOP_FIELDS
 """Config fields a resumed run may change: they do not alter what one epoch computes."""
 
 

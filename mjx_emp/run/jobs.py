@@ -24,6 +24,7 @@ from mjx_emp.commands import (
     check_phase2,
     check_resume,
     check_train,
+    resumed_stops,
 )
 from mjx_emp.errors import ConfigError, RenderError
 from mjx_emp.phase2.config import Phase2Config
@@ -172,21 +173,21 @@ def _restore(run_dir: Path, trainer, template, fallback: bool = False, epoch: in
         return epoch, checkpoints.restore(epoch, template, trainer.cfg)
 
 
-def _with_epochs(cfg, epochs: int | None):
-    """``cfg`` with its epoch count replaced (the one setting a resume may change), if given."""
-    return cfg if epochs is None else dataclasses.replace(cfg, epochs=epochs)
+def _with_stops(cfg, stops: dict | None):
+    """``cfg`` with the loop fields in ``stops`` replaced (the settings a resume may change)."""
+    return dataclasses.replace(cfg, **stops) if stops else cfg
 
 
-def load_run(run_dir: Path, fallback: bool = False, epochs: int | None = None, field: str = "run_dir",
+def load_run(run_dir: Path, fallback: bool = False, stops: dict | None = None, field: str = "run_dir",
              epoch: int | None = None):
     """A run's agent and its newest good checkpoint (or ``epoch``'s): ``(agent, epoch, state)``.
 
-    ``epochs`` replaces the run's epoch count; ``field`` is the CLI field that errors about
-    ``run_dir`` name.
+    ``stops`` replaces the run's loop fields (epochs, step budget); ``field`` is the CLI field
+    that errors about ``run_dir`` name.
     """
     import jax
 
-    cfg = _with_epochs(read_run_config(Path(run_dir), field), epochs)
+    cfg = _with_stops(read_run_config(Path(run_dir), field), stops)
     if cfg.shards > 1:  # a split run: shard 0's state (its networks are every shard's) and agent
         from mjx_emp.run.devices import ShardedAgent, shard_slice
 
@@ -198,13 +199,13 @@ def load_run(run_dir: Path, fallback: bool = False, epochs: int | None = None, f
     return trainer, epoch, state
 
 
-def load_program(run_dir: Path, fallback: bool = False, epochs: int | None = None, field: str = "resume",
+def load_program(run_dir: Path, fallback: bool = False, stops: dict | None = None, field: str = "resume",
                  num_devices: int = 0):
     """What trains a run on (see :func:`training_program`) and its newest good checkpoint,
     placed on the program's devices: ``(program, epoch, state)``. For the run's writer (a resume)."""
     import jax
 
-    program = training_program(_with_epochs(read_run_config(Path(run_dir), field), epochs), num_devices)
+    program = training_program(_with_stops(read_run_config(Path(run_dir), field), stops), num_devices)
     epoch, state = _restore(Path(run_dir), program, jax.eval_shape(program.init), fallback, writer=True)
     return program, epoch, (program.place(state) if hasattr(program, "place") else state)
 
@@ -223,7 +224,7 @@ def _resume(exp: ResumeExperiment, load: Callable, start_over: Callable, film: F
                   flush=True)
             keep_metrics_through(run_dir / METRICS_FILE, 0)
             return _train_new(trainer, trainer.init(), run_dir, exp.keep_checkpoints, exp.tracking, film=film)
-        trainer, epoch, state = load(run_dir, exp.fallback, exp.epochs, field="resume")
+        trainer, epoch, state = load(run_dir, exp.fallback, resumed_stops(exp), field="resume")
         if trainer.cfg.epochs < epoch:  # before anything is rewritten
             raise ConfigError(f"epochs: {run_dir} is at epoch {epoch}; give at least that many; got {trainer.cfg.epochs}")
         from mjx_emp.run.checkpoint import Checkpoints
@@ -246,7 +247,7 @@ def resume(exp: ResumeExperiment, film: Film | None = None):
 
 def _program_from_config(run_dir: Path, exp: ResumeExperiment):
     """What trains RUN_DIR afresh from its config.json (a run stopped before its first checkpoint)."""
-    return training_program(_with_epochs(read_run_config(run_dir, "resume"), exp.epochs), exp.num_devices)
+    return training_program(_with_stops(read_run_config(run_dir, "resume"), resumed_stops(exp)), exp.num_devices)
 
 
 def _phase2_without_checkpoint(run_dir: Path, exp: ResumeExperiment):
@@ -272,7 +273,7 @@ def train_phase2(exp: Phase2Experiment, film: Film | None = None):
         return _train_new(trainer, trainer.init(skills_state), out, exp.keep_checkpoints, exp.tracking, film=film)
 
 
-def load_phase2(phase2_dir: Path, fallback: bool = False, epochs: int | None = None, field: str = "run_dir",
+def load_phase2(phase2_dir: Path, fallback: bool = False, stops: dict | None = None, field: str = "run_dir",
                 writer: bool = False):
     """A phase-2 directory's trainer and newest good checkpoint: ``(trainer, epoch, state)``.
 
@@ -284,7 +285,7 @@ def load_phase2(phase2_dir: Path, fallback: bool = False, epochs: int | None = N
     from mjx_emp.phase2.build import make_phase2_trainer
 
     phase2_dir = Path(phase2_dir)
-    cfg = _with_epochs(read_run_config(phase2_dir, field, Phase2Config), epochs)
+    cfg = _with_stops(read_run_config(phase2_dir, field, Phase2Config), stops)
     trainer = make_phase2_trainer(make_agent(read_run_config(phase2_dir, field, file=SKILLS_FILE)), cfg)
     template = jax.eval_shape(trainer.init, jax.eval_shape(trainer.phase1.init))
     epoch, state = _restore(phase2_dir, trainer, template, fallback, writer=writer)

@@ -66,19 +66,39 @@ def _alone(state, stats) -> list[tuple[Any, Any]]:
     return [(state, stats)]
 
 
-def _epoch_of(state) -> int:
-    """A train state's epoch (a split run's state holds it once per shard, maybe on several hosts)."""
+def _first(array) -> int:
+    """A per-run scalar of a train state as a Python integer: shard 0's where a split run holds
+    it once per shard, maybe on several hosts."""
     import numpy as np
 
-    epoch = state.epoch
-    if not getattr(epoch, "is_fully_addressable", True):
-        epoch = epoch.addressable_shards[0].data  # every shard holds the same epoch
-    return int(np.asarray(epoch).reshape(-1)[0])
+    if not getattr(array, "is_fully_addressable", True):
+        array = array.addressable_shards[0].data
+    return int(np.asarray(array).reshape(-1)[0])
+
+
+def _epoch_of(state) -> int:
+    """A train state's epoch (every shard of a split run holds the same)."""
+    return _first(state.epoch)
+
+
+def _env_steps_of(state) -> int:
+    """A train state's environment steps so far (shard 0 of a split run holds the whole run's)."""
+    from mjx_emp.counters import StepCounter
+
+    return StepCounter(hi=_first(state.env_steps.hi), lo=_first(state.env_steps.lo)).value()
+
+
+def _budget_spent(states: list, budgets: list[int | None]) -> bool:
+    """Whether training stops for its step budget: every member state has reached its
+    ``max_env_steps`` (None: no budget, never spent)."""
+    return all(budget is not None for budget in budgets) and all(
+        _env_steps_of(state) >= budget for state, budget in zip(states, budgets))
 
 
 def train_members(program, state, members: list[Member], report: Callable[[dict], None],
                   split: Callable[[Any, Any], list[tuple[Any, Any]]] = _alone):
-    """Train until the members' epoch count, checkpointing and logging each finished epoch.
+    """Train until the members' epoch count, or until every member has spent its
+    ``max_env_steps``, checkpointing and logging each finished epoch.
 
     ``program.train_epoch(state) -> (state, stats)`` trains every member at once (one agent,
     or several seeds under one vmap); ``split(state, stats)`` gives each member's share.
@@ -156,7 +176,11 @@ def _train_members(program, state, members, report, split, gather_to_host, lead:
     with contextlib.ExitStack() as stack:
         logs = [stack.enter_context(_metrics_log(member.run_dir) if lead else open(os.devnull, "w"))
                 for member in members]
-        while _epoch_of(split(state, None)[0][0]) < epochs:
+        budgets = [member.trainer.cfg.max_env_steps for member in members]
+        while True:
+            states = [part[0] for part in split(state, None)]
+            if _epoch_of(states[0]) >= epochs or _budget_spent(states, budgets):
+                break
             start = time.perf_counter()
             state, stats = program.train_epoch(state)
             jax.block_until_ready(state)

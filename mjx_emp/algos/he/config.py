@@ -52,6 +52,10 @@ class HEConfig:
     far above what the level can reach; see networks.GoalSpaceActor)."""
     epochs: int = 20
     """Curriculum epochs (the paper trains 980-1900; see the presets)."""
+    max_env_steps: int | None = None
+    """Stop at the end of the first epoch whose total environment steps reach this many (with
+    ``--seeds``, once every seed has): one budget for methods whose epochs hold different
+    numbers of steps. None: train all ``epochs``."""
     num_envs: int = 128
     """Environments simulated in parallel during data collection."""
     chunk_steps: int = 10
@@ -139,8 +143,8 @@ class HEConfig:
 
 
 _PER_LEVEL = ("n", "sigma_gc", "sigma_gs", "eps", "init_half_width", "max_half_width")
-_POSITIVE = ("epochs", "num_envs", "chunk_steps", "gc_iterations", "gc_grad_steps", "critics", "n_step",
-             "gs_iterations", "gs_grad_steps", "batch_size", "replay_capacity",
+_POSITIVE = ("epochs", "max_env_steps", "num_envs", "chunk_steps", "gc_iterations", "gc_grad_steps", "critics",
+             "n_step", "gs_iterations", "gs_grad_steps", "batch_size", "replay_capacity",
              "gs_replay_capacity", "start_capacity", "start_chain", "start_chunks")
 
 

@@ -31,6 +31,10 @@ class SkillConfig:
     """Actions per skill: an episode runs one skill for n actions from the initial state."""
     epochs: int = 100
     """Epochs (each ``iterations`` collect-then-learn rounds)."""
+    max_env_steps: int | None = None
+    """Stop at the end of the first epoch whose total environment steps reach this many (with
+    ``--seeds``, once every seed has): one budget for methods whose epochs hold different
+    numbers of steps. None: train all ``epochs``."""
     num_envs: int = 16
     """Environments simulated in parallel."""
     collect_steps: int = 10
@@ -98,8 +102,8 @@ class MetraConfig(SkillConfig):
     """The constraint term is min(slack, 1 - ||phi(s') - phi(s)||^2) (METRA's code: 1e-3)."""
 
 
-_POSITIVE = ("skill_dim", "n", "epochs", "num_envs", "collect_steps", "iterations", "grad_steps", "batch_size",
-             "replay_capacity", "min_replay")
+_POSITIVE = ("skill_dim", "n", "epochs", "max_env_steps", "num_envs", "collect_steps", "iterations", "grad_steps",
+             "batch_size", "replay_capacity", "min_replay")
 _RATES = ("actor_lr", "critic_lr", "alpha_lr", "model_lr")
 
 
