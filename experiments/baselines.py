@@ -32,7 +32,7 @@ from mjx_emp.metrics import coverage_cells, mean_and_stderr
 from mjx_emp.phase2.presets import PHASE2_PRESETS, phase2_preset_for
 from mjx_emp.run import jobs, store
 from mjx_emp.run.evaluate import COVERAGE_SKILLS, phase2_figures, skill_figures
-from mjx_emp.viz.plots import colour_of, method_label, seed_band
+from mjx_emp.viz.plots import colour_of, method_label, seed_band, shades
 
 ALGOS = ("he", "diayn", "hidio", "dads", "metra")
 
@@ -234,6 +234,17 @@ def curve_of(row: dict) -> tuple[np.ndarray, np.ndarray] | None:
     return phase2_curve(row["run_dir"])
 
 
+def chart_colours(presets: list[str]) -> list[str]:
+    """Each row name's colour: its method's (see ``colour_of``), in shades where one method has
+    several variants (GCRL's boxes), so a variant never takes another method's colour."""
+    methods = [method_label(all_presets()[re.sub(r"-w[0-9.]+$", "", p)][1]) for p in presets]
+    method_colours: dict[str, str] = {}
+    for method in methods:
+        method_colours.setdefault(method, colour_of(method, list(method_colours.values())))
+    variants = {m: shades(c, methods.count(m)) for m, c in method_colours.items()}
+    return [variants[m][methods[:i].count(m)] for i, m in enumerate(methods)]
+
+
 def draw_charts(rows: list[dict], path: Path) -> Path:
     """The paper's Fig. 3-style chart (phase-2 mean min distance against phase-2 steps, mean
     over seeds with a std band; a method whose rows keep no curve as a dashed line at its final
@@ -246,11 +257,7 @@ def draw_charts(rows: list[dict], path: Path) -> Path:
 
     fig, (phase2, bars) = plt.subplots(1, 2, figsize=(11, 4.2))
     presets = list(dict.fromkeys(r["preset"] for r in rows))
-    labels, colours = [chart_label(p) for p in presets], []
-    for preset, label in zip(presets, labels):  # a method's own colour, for the first of its variants
-        method = method_label(all_presets()[re.sub(r"-w[0-9.]+$", "", preset)][1])
-        first = colour_of(method, colours)
-        colours.append(first if first not in colours else colour_of(label, colours))
+    labels, colours = [chart_label(p) for p in presets], chart_colours(presets)
     seeds = {p: [r for r in rows if r["preset"] == p] for p in presets}
     curves = {p: [c for c in map(curve_of, seeds[p]) if c is not None] for p in presets}
     if any(curves.values()):

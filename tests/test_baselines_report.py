@@ -1,6 +1,6 @@
 """The comparison table of experiments/baselines.py: rows at one budget, mean ± std (stderr)."""
 
-from baselines import report_table, rows_at_budget
+from baselines import chart_colours, report_table, rows_at_budget
 
 
 def _row(preset, seed, steps, cells, distance):
@@ -31,3 +31,15 @@ def test_charts_draw_methods_with_and_without_phase2_curves(tmp_path):
     without = {**_row("metra-ant-field-cpu", 0, 1e6, 8, 14.0), "env": "ant_field", "run_dir": str(tmp_path / "gone")}
     path = draw_charts([with_curve, without], tmp_path / "chart.png")
     assert path.exists() and path.stat().st_size > 10_000
+
+
+def test_chart_colours_keep_one_hue_per_method_and_never_share_a_colour():
+    from matplotlib.colors import rgb_to_hsv, to_rgb
+
+    presets = ["ant-field-cpu-k1", "gcrl-ant-field-cpu-w0.5", "gcrl-ant-field-cpu-w2", "gcrl-ant-field-cpu-w8",
+               "gcrl-ant-field-cpu-w20", "metra-ant-field-cpu", "diayn-ant-field-cpu", "hidio-ant-field-cpu",
+               "dads-ant-field-cpu"]
+    colours = chart_colours(presets)
+    assert len(set(colours)) == len(presets)
+    hues = [rgb_to_hsv(to_rgb(c))[0] for c in colours[1:5]]
+    assert max(hues) - min(hues) < 0.02  # GCRL's four boxes: shades of its one colour

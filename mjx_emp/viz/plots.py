@@ -74,6 +74,16 @@ def colour_of(label: str, taken: list[str]) -> str:
     return spare[0] if spare else "black"
 
 
+def shades(colour: str, count: int) -> list[str]:
+    """``count`` shades of ``colour`` from darker to lighter (``colour`` itself for one), so that
+    variants of one method (GCRL's boxes) share its hue and stay apart from other methods."""
+    from matplotlib.colors import to_hex, to_rgb
+
+    base = np.array(to_rgb(colour))
+    mixes = np.linspace(-0.45, 0.45, count) if count > 1 else [0.0]
+    return [to_hex(base * (1 + m) if m < 0 else base + (1 - base) * m) for m in mixes]
+
+
 def _steps(metrics: list[dict]) -> np.ndarray:
     """Each line's env steps (its epoch where a line has none)."""
     return np.array([m.get("env_steps", m["epoch"]) for m in metrics], float)
