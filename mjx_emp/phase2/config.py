@@ -36,9 +36,9 @@ class Phase2Config:
     epochs: int = 30
     """Training epochs (each: ``iterations`` x (collect, update), then a greedy evaluation)."""
     max_env_steps: int | None = None
-    """Stop at the end of the first epoch whose total environment steps reach this many (with
-    ``--seeds``, once every seed has): one budget for methods whose epochs hold different
-    numbers of steps. None: train all ``epochs``."""
+    """Stop at the end of the first epoch whose total phase-2 environment steps reach this many
+    (a two-level agent's attempts hold more primitive steps than a one-level agent's). None:
+    train all ``epochs``."""
     num_envs: int = 64
     """Environments simulated in parallel."""
     iterations: int = 10
