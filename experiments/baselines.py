@@ -66,6 +66,9 @@ class Args:
     budget_tolerance: float = 0.01
     """How far (a fraction of ``--env-steps``) a row's env steps may be from the budget: a
     two-level run's epochs hold different numbers of steps, so its epoch count only comes near."""
+    spread: tuple[str, ...] = ()
+    """Coverage recounts (``experiments/coverage_spread.py`` output): a row whose run directory
+    is recounted there reports the mean over its draws as its coverage, in the table and chart."""
     goal_half_width: float | None = None
     """GCRL presets only: a hand-set box of this half-width (m) instead of the preset's; runs
     go to BASE/<preset>-w<width>-s<seed> and rows are named <preset>-w<width>."""
@@ -160,6 +163,20 @@ def rows_at_budget(rows: list[dict], env_steps: float | None, tolerance: float =
     return [r for r in rows if abs(r["env_steps"] - env_steps) <= tolerance * env_steps]
 
 
+def with_spread_coverage(rows: list[dict], spread_rows: list[dict]) -> list[dict]:
+    """ROWS with ``coverage_cells`` replaced by the mean over draws wherever SPREAD_ROWS recount
+    the same run directory (``coverage_draws`` then holds the draws); other rows keep their one draw."""
+    draws = {r["run_dir"]: r["cells"] for r in spread_rows}
+    return [{**r, "coverage_cells": float(np.mean(draws[r["run_dir"]])), "coverage_draws": draws[r["run_dir"]]}
+            if r["run_dir"] in draws else r for r in rows]
+
+
+def draw_counts(rows: list[dict]) -> str:
+    """How many skill draws ROWS' coverage figures average: one number, or the range where they differ."""
+    counts = sorted({len(r.get("coverage_draws", [None])) for r in rows})
+    return str(counts[0]) if len(counts) == 1 else f"{counts[0]}-{counts[-1]}"
+
+
 def report_table(rows: list[dict]) -> str:
     """A Markdown table of ROWS by preset: seeds, env steps, wall time, coverage and phase 2's
     mean min distance, each as mean ± std (standard error)."""
@@ -169,15 +186,16 @@ def report_table(rows: list[dict]) -> str:
         m = mean_and_stderr(values)
         return f"{m['mean']:{digits}} ± {m['std']:.2g} ({m['stderr']:.2g})"
 
-    lines = ["| preset | seeds | env steps | wall s (mean) | coverage cells | posterior std | "
-             "phase-2 min distance (m) | phase-2 success |", "|---|---|---|---|---|---|---|---|"]
+    lines = ["| preset | seeds | env steps | wall s (mean) | coverage cells | coverage draws per seed | posterior std | "
+             "phase-2 min distance (m) | phase-2 success |", "|---|---|---|---|---|---|---|---|---|"]
     for preset in dict.fromkeys(r["preset"] for r in rows):
         mine = [r for r in rows if r["preset"] == preset]
         stds = [r["posterior_std"] for r in mine if r["posterior_std"] is not None]
         done = [r for r in mine if r.get("phase2_min_distance") is not None]
         lines.append(
             f"| {preset} | {len(mine)} | {mine[0]['env_steps']:.4g} | {np.mean([r['wall_s'] for r in mine]):.0f} "
-            f"| {cell([r['coverage_cells'] for r in mine])} | {f'{np.mean(stds):.3g}' if stds else '-'} "
+            f"| {cell([r['coverage_cells'] for r in mine])} | {draw_counts(mine)} "
+            f"| {f'{np.mean(stds):.3g}' if stds else '-'} "
             f"| {cell([r['phase2_min_distance'] for r in done])} "
             f"| {cell([r['phase2_success'] for r in done], '.2f')} |")
     return "\n".join(lines)
@@ -198,6 +216,7 @@ def main(args: Args) -> None:
     for extra in args.include:
         rows = rows + json.loads(Path(extra).read_text())["rows"]
     rows = rows_at_budget(rows, args.env_steps, args.budget_tolerance)
+    rows = with_spread_coverage(rows, [r for f in args.spread for r in json.loads(Path(f).read_text())["rows"]])
     print(report_table(rows))
     if not args.report_only:
         print(f"wrote {out}")
@@ -288,7 +307,8 @@ def draw_charts(rows: list[dict], path: Path) -> Path:
              yerr=[np.std(c, ddof=1) if len(c) > 1 else 0 for c in cells], capsize=3)
     bars.set_xticks(range(len(presets)), [f"{label} (n={len(c)})" for label, c in zip(labels, cells)],
                     rotation=30, ha="right", fontsize=7)
-    bars.set_ylabel("1 m cells visited by 48 greedy skills")
+    drawn = draw_counts(rows)
+    bars.set_ylabel(f"1 m cells visited by 48 greedy skills ({drawn} draw{'' if drawn == '1' else 's'} per seed)")
     bars.set_title(f"coverage on {rows[0]['env']}: mean ± std over seeds")
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -5,7 +5,8 @@ skills from the agent's skill space (HE and GCRL: the top goal space; the flat l
 their prior), so one run gives different counts for different draws. For every row of
 ``--rows`` (the comparison's JSON, filtered by ``--env``) this reloads the run's newest
 checkpoint and counts coverage for ``--draws`` independent draws, writing one row per run
-(``preset``, ``seed``, ``cells`` per draw, their mean and sample std) to ``--out``.
+(``preset``, ``seed``, ``cells`` per draw, their mean and sample std) to ``--out``; runs
+already counted there are kept, not recounted, so new runs can be added to one file.
 ``python experiments/coverage_spread.py --env ant_field --draws 8``; for the robots' runs
 ``--rows benchmarks/results/robots_cpu.json --presets ant-field-cpu-k2 --out ...``.
 """
@@ -28,7 +29,8 @@ from mjx_emp.run.evaluate import COVERAGE_SKILLS
 class Args:
     """Runs listed in a comparison's JSON, recounted over several skill draws."""
 
-    rows: str = "benchmarks/results/baselines_cpu.json"
+    rows: tuple[str, ...] = ("benchmarks/results/baselines_cpu.json",)
+    """Comparison JSON files whose runs are recounted."""
     env: str = "ant_field"
     """Only the rows of this environment (rows that name one: the comparison's JSON)."""
     presets: tuple[str, ...] = ()
@@ -47,25 +49,45 @@ def coverage_over_draws(run_dir: Path, seed: int, draws: int) -> list[int]:
             for draw in range(draws)]
 
 
+def counted_rows(out: Path, env: str, draws: int) -> list[dict]:
+    """The rows OUT already holds, checked to be counted for ENV with DRAWS draws (else a clear error)."""
+    if not out.exists():
+        return []
+    previous = json.loads(out.read_text())
+    if (previous["env"], previous["draws"]) != (env, draws):
+        raise SystemExit(f"--out: {out} holds env {previous['env']!r} with {previous['draws']} draws, "
+                         f"not --env {env!r} with --draws {draws}; pick another --out")
+    return previous["rows"]
+
+
+def write_rows(out: Path, env: str, draws: int, rows: list[dict]) -> None:
+    """OUT rewritten with ROWS, atomically, so a run stopped midway keeps every count made so far."""
+    partial = out.with_name(out.name + ".partial")
+    partial.write_text(json.dumps({"backend": jax.default_backend(), "env": env, "draws": draws,
+                                   "skills_per_draw": COVERAGE_SKILLS, "rows": rows}, indent=1))
+    partial.replace(out)
+
+
 def main(args: Args) -> None:
-    rows = json.loads(Path(args.rows).read_text())["rows"]
+    rows = [r for f in args.rows for r in json.loads(Path(f).read_text())["rows"]]
     if args.presets:
         rows = [r for r in rows if r["preset"] in args.presets]
         if not rows:
-            raise SystemExit(f"--presets: no rows of {list(args.presets)} in {args.rows}")
+            raise SystemExit(f"--presets: no rows of {list(args.presets)} in {list(args.rows)}")
     else:
         rows = [r for r in rows if r.get("env") == args.env]
         if not rows:
-            raise SystemExit(f"--env: no rows of {args.env!r} in {args.rows}")
-    out_rows = []
-    for row in rows:
+            raise SystemExit(f"--env: no rows of {args.env!r} in {list(args.rows)}")
+    out = Path(args.out)
+    out_rows = counted_rows(out, args.env, args.draws)
+    counted = {r["run_dir"] for r in out_rows}
+    for row in [r for r in rows if r["run_dir"] not in counted]:
         cells = coverage_over_draws(Path(row["run_dir"]), row["seed"], args.draws)
         spread = mean_and_stderr(cells)
         out_rows.append({"preset": row["preset"], "seed": row["seed"], "run_dir": row["run_dir"], "cells": cells,
                          "mean": spread["mean"], "std": spread["std"]})
         print(json.dumps(out_rows[-1]), flush=True)
-    Path(args.out).write_text(json.dumps({"backend": jax.default_backend(), "env": args.env, "draws": args.draws,
-                                          "skills_per_draw": COVERAGE_SKILLS, "rows": out_rows}, indent=1))
+        write_rows(out, args.env, args.draws, out_rows)
     print("| preset | runs | coverage cells, mean of draws (mean ± std over runs) | std over draws within a run (mean) |")
     print("|---|---|---|---|")
     for preset in dict.fromkeys(r["preset"] for r in out_rows):

@@ -43,3 +43,15 @@ def test_chart_colours_keep_one_hue_per_method_and_never_share_a_colour():
     assert len(set(colours)) == len(presets)
     hues = [rgb_to_hsv(to_rgb(c))[0] for c in colours[1:5]]
     assert max(hues) - min(hues) < 0.02  # GCRL's four boxes: shades of its one colour
+
+
+def test_spread_recounts_replace_one_draw_by_the_mean_of_draws_for_their_run_only():
+    from baselines import with_spread_coverage
+
+    rows = [{**_row("a", 0, 1e6, 2, 10.0), "run_dir": "/runs/a-s0"}, {**_row("a", 1, 1e6, 6, 12.0), "run_dir": "/runs/a-s1"}]
+    spread = [{"preset": "a", "seed": 0, "run_dir": "/runs/a-s0", "cells": [3, 5, 4, 4]}]
+    recounted = with_spread_coverage(rows, spread)
+    assert recounted[0]["coverage_cells"] == 4.0 and recounted[0]["coverage_draws"] == [3, 5, 4, 4]
+    assert recounted[1] == rows[1]
+    a_line = next(line for line in report_table(recounted).splitlines() if line.startswith("| a |"))
+    assert "| 5 ± 1.4 (1) | 1-4 |" in a_line  # mean of 4.0 and 6; one seed of 1 draw, one of 4
