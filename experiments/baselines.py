@@ -307,9 +307,10 @@ def draw_charts(rows: list[dict], path: Path) -> Path:
              yerr=[np.std(c, ddof=1) if len(c) > 1 else 0 for c in cells], capsize=3)
     bars.set_xticks(range(len(presets)), [f"{label} (n={len(c)})" for label, c in zip(labels, cells)],
                     rotation=30, ha="right", fontsize=7)
+    bars.set_ylabel("1 m cells visited by 48 greedy skills")
     drawn = draw_counts(rows)
-    bars.set_ylabel(f"1 m cells visited by 48 greedy skills ({drawn} draw{'' if drawn == '1' else 's'} per seed)")
-    bars.set_title(f"coverage on {rows[0]['env']}: mean ± std over seeds")
+    bars.set_title(f"coverage on {rows[0]['env']} ({drawn} draw{'' if drawn == '1' else 's'} of skills per seed)\n"
+                   "mean ± std over seeds", fontsize=10)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
