@@ -149,9 +149,7 @@ def merge_row(out: Path, row: dict, key: tuple[str, ...] = ("preset", "seed")) -
     rows = json.loads(out.read_text())["rows"] if out.exists() else []
     rows = [r for r in rows if tuple(r[f] for f in key) != tuple(row[f] for f in key)] + [row]
     out.parent.mkdir(parents=True, exist_ok=True)
-    partial = out.with_name(out.name + ".partial")
-    partial.write_text(json.dumps({"backend": jax.default_backend(), "rows": rows}, indent=1))
-    partial.replace(out)
+    store.write_atomically(out, json.dumps({"backend": jax.default_backend(), "rows": rows}, indent=1))
     return rows
 
 

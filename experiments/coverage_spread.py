@@ -21,7 +21,7 @@ import jax
 import tyro
 
 from mjx_emp.metrics import coverage_cells, mean_and_stderr
-from mjx_emp.run import jobs
+from mjx_emp.run import jobs, store
 from mjx_emp.run.evaluate import COVERAGE_SKILLS
 
 
@@ -62,10 +62,8 @@ def counted_rows(out: Path, env: str, draws: int) -> list[dict]:
 
 def write_rows(out: Path, env: str, draws: int, rows: list[dict]) -> None:
     """OUT rewritten with ROWS, atomically, so a run stopped midway keeps every count made so far."""
-    partial = out.with_name(out.name + ".partial")
-    partial.write_text(json.dumps({"backend": jax.default_backend(), "env": env, "draws": draws,
-                                   "skills_per_draw": COVERAGE_SKILLS, "rows": rows}, indent=1))
-    partial.replace(out)
+    store.write_atomically(out, json.dumps({"backend": jax.default_backend(), "env": env, "draws": draws,
+                                            "skills_per_draw": COVERAGE_SKILLS, "rows": rows}, indent=1))
 
 
 def main(args: Args) -> None:
