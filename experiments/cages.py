@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import tyro
 from baselines import merge_row, train_or_resume, train_phase2
-from robots_cpu import evaluate_run
+from robots_cpu import loaded_run_row
 
 from mjx_emp.run import jobs
 
@@ -94,8 +94,9 @@ def main(args: Args) -> None:
             run_dir = train_or_resume(Path(args.base), preset, seed, args.epochs)
             if args.phase2:
                 train_phase2(run_dir)
-            agent, _, state = jobs.load_run(run_dir)
-            row = {**evaluate_run(run_dir, preset, seed, args.episodes), "cage": cage_figures(agent, state)}
+            loaded = jobs.load_run(run_dir)
+            agent, _, state = loaded
+            row = {**loaded_run_row(run_dir, preset, seed, args.episodes, loaded), "cage": cage_figures(agent, state)}
             merge_row(out, row)
             cage = row["cage"]
             print(json.dumps({"preset": preset, "seed": seed, "env_steps": row["env_steps"],

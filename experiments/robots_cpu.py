@@ -63,7 +63,13 @@ def critic_loss_curve(metrics: list[dict]) -> list[list[float | None]]:
 
 def evaluate_run(run_dir: Path, preset: str, seed: int, episodes: int, epoch: int | None = None) -> dict:
     """One JSON row: what the run used and what its top level learned (at ``epoch``, or the newest)."""
-    trainer, epoch, state = jobs.load_run(run_dir, epoch=epoch)
+    return loaded_run_row(run_dir, preset, seed, episodes, jobs.load_run(run_dir, epoch=epoch))
+
+
+def loaded_run_row(run_dir: Path, preset: str, seed: int, episodes: int, loaded: tuple) -> dict:
+    """``evaluate_run``'s row from a run already loaded by ``jobs.load_run`` (trainer, epoch,
+    state), for callers that need the loaded agent too and should not restore it twice."""
+    trainer, epoch, state = loaded
     figures = phase1_figures(trainer, state, jax.random.key(1000 + seed), episodes)
     metrics = [m for m in read_metrics(run_dir) if m["epoch"] <= epoch]
     top = figures["levels"][-1]
