@@ -82,7 +82,9 @@ def variant_name(preset: str, goal_half_width: float | None) -> str:
 def train_or_resume(base: Path, preset: str, seed: int, epochs: int | None,
                     goal_half_width: float | None = None, max_env_steps: int | None = None) -> Path:
     """The run directory of (preset, seed), trained to its epoch count or ``max_env_steps``
-    (with GCRL's box half-width replaced when ``goal_half_width`` is given)."""
+    (with GCRL's box half-width replaced when ``goal_half_width`` is given). A run already there
+    resumes to its own epoch count and budget unless ``epochs`` or ``max_env_steps`` moves them,
+    so evaluating a finished run never trains it further by surprise."""
     presets = all_presets()
     if preset not in presets:
         raise SystemExit(f"presets: {preset!r} is unknown; allowed values: {sorted(presets)}")
@@ -97,7 +99,7 @@ def train_or_resume(base: Path, preset: str, seed: int, epochs: int | None,
         config = dataclasses.replace(config, goal_half_width=(goal_half_width,) * len(config.goal_half_width))
     run_dir = base / f"{variant_name(preset, goal_half_width)}-s{seed}"
     if (run_dir / store.CONFIG_FILE).exists():
-        jobs.resume(ResumeExperiment(resume=str(run_dir), epochs=config.epochs, max_env_steps=max_env_steps))
+        jobs.resume(ResumeExperiment(resume=str(run_dir), epochs=epochs, max_env_steps=max_env_steps))
     else:
         jobs.train(TrainExperiment(config=config, run_dir=str(run_dir)))
     return run_dir
