@@ -45,7 +45,8 @@ class Args:
                                 "metra-point-mass")
     seeds: tuple[int, ...] = (0, 1, 2, 3)
     epochs: int | None = None
-    """Override the presets' epoch counts; None keeps them."""
+    """Override the presets' epoch counts; None keeps them for a new run and a run's own count
+    for one already there (it is resumed, never trained past it)."""
     max_env_steps: int | None = None
     """Stop every run at the end of its first epoch that reaches this many env steps (the
     epoch count stays the ceiling): one budget for methods whose epochs differ in size."""

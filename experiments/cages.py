@@ -33,7 +33,8 @@ class Args:
     presets: tuple[str, ...] = ("ant-cage-cpu-k1", "half-cheetah-cage-cpu-k1")
     seeds: tuple[int, ...] = (0,)
     epochs: int | None = None
-    """Override the presets' epoch counts (a shorter budget); None keeps them."""
+    """Override the presets' epoch counts (a shorter budget); None keeps them for a new run and a run's own count
+    for one already there (it is resumed, never trained past it)."""
     phase2: bool = True
     """Also train phase 2 on the run's skills (the cage's CPU task)."""
     episodes: int = 400

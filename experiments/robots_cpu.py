@@ -35,7 +35,8 @@ class Args:
     presets: tuple[str, ...] = ("ant-field-cpu-k1",)
     seeds: tuple[int, ...] = (0, 1, 2, 3)
     epochs: int | None = None
-    """Override the presets' epoch counts (a shorter budget); None keeps them."""
+    """Override the presets' epoch counts (a shorter budget); None keeps them for a new run and a run's own count
+    for one already there (it is resumed, never trained past it)."""
     base: str = "runs/robots_cpu"
     """Where the runs go (existing runs are resumed or reused)."""
     train: bool = True

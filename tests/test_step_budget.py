@@ -7,6 +7,7 @@ import dataclasses
 import json
 
 import pytest
+from baselines import train_or_resume
 from tiny import TINY1, run_cli
 
 from mjx_emp.algos.he.presets import PRESETS
@@ -63,8 +64,6 @@ def test_a_budget_below_one_step_is_refused_naming_the_field(tmp_path):
 
 
 def test_the_comparison_scripts_resume_a_finished_run_to_its_own_epochs_unless_told_otherwise(tmp_path):
-    from baselines import train_or_resume
-
     run_dir = tmp_path / "point-mass-k1-s0"  # where train_or_resume keeps (point-mass-k1, seed 0)
     jobs.train(TrainExperiment(config=dataclasses.replace(TINY1, epochs=1), run_dir=str(run_dir)))
     assert train_or_resume(tmp_path, "point-mass-k1", 0, None) == run_dir
