@@ -95,9 +95,11 @@ def train_or_resume(base: Path, preset: str, seed: int, epochs: int | None,
     if max_env_steps is not None:
         config = dataclasses.replace(config, max_env_steps=max_env_steps)
     if goal_half_width is not None:
-        if not hasattr(config, "goal_half_width"):
-            raise SystemExit(f"goal_half_width: only GCRL presets have a hand-set box; {preset!r} is not one")
-        config = dataclasses.replace(config, goal_half_width=(goal_half_width,) * len(config.goal_half_width))
+        box = algorithm_of(config).hand_set_box
+        if box is None:
+            raise SystemExit(f"goal_half_width: only presets with a hand-set goal box take one; {preset!r} learns its "
+                             f"goal space")
+        config = dataclasses.replace(config, **{box: (goal_half_width,) * len(getattr(config, box))})
     run_dir = base / f"{variant_name(preset, goal_half_width)}-s{seed}"
     if (run_dir / store.CONFIG_FILE).exists():
         jobs.resume(ResumeExperiment(resume=str(run_dir), epochs=epochs, max_env_steps=max_env_steps))
@@ -240,8 +242,9 @@ def chart_label(preset: str) -> str:
     name, width = re.fullmatch(r"(.*?)(?:-w([0-9.]+))?", preset).groups()
     config = all_presets()[name][1]
     label = method_label(config)
-    if hasattr(config, "goal_half_width"):
-        side = 2 * (float(width) if width else config.goal_half_width[0])
+    box = algorithm_of(config).hand_set_box
+    if box is not None:
+        side = 2 * (float(width) if width else getattr(config, box)[0])
         label = f"GCRL {side:g} m box" if len(DOMAINS[config.env].goal_qpos) == 1 else f"GCRL {side:g}x{side:g} m"
     return label
 

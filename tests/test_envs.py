@@ -221,3 +221,20 @@ def test_physics_overrides_reach_the_model_and_bad_ones_name_their_field():
         make_env("point_mass", False, 0, "verlet")
     with pytest.raises(ConfigError, match="solver_iterations: must be >= 0"):
         check_train_config(HEConfig(solver_iterations=-1))
+
+
+def test_flat_skill_learners_take_the_same_physics_overrides_as_he():
+    """A comparison under accurate contacts gives every method 4 solver iterations, not only HE."""
+    from mjx_emp.algos.registry import make_agent
+    from mjx_emp.algos.skills.config import MetraConfig
+    from mjx_emp.algos.skills.presets import PRESETS as SKILL_PRESETS
+
+    agent = make_agent(MetraConfig(solver_iterations=7, integrator="rk4"))
+    assert agent.env.mj_model.opt.iterations == 7
+    assert agent.env.mj_model.opt.integrator == mujoco.mjtIntegrator.mjINT_RK4
+    with pytest.raises(ConfigError, match="solver_iterations: must be >= 0"):
+        make_agent(MetraConfig(solver_iterations=-1))
+    with pytest.raises(ConfigError, match="integrator: 'verlet' is unknown"):
+        make_agent(MetraConfig(integrator="verlet"))
+    for name, (_, cfg) in SKILL_PRESETS.items():
+        assert cfg.solver_iterations == (4 if name.endswith("-4iter") else 0), name

@@ -85,3 +85,13 @@ def test_an_unknown_kind_of_skills_is_refused():
     he = ALGORITHMS["he"]
     with pytest.raises(ValueError, match="skills: 'options' is unknown; allowed values"):
         dataclasses.replace(he, skills="options")
+
+
+def test_a_hand_set_box_names_a_config_field_of_its_algorithm():
+    """Box sweeps replace the field the registry names; an algorithm that learns its goal space names none."""
+    boxes = {name: algorithm.hand_set_box for name, algorithm in ALGORITHMS.items()}
+    assert boxes["gcrl"] == "goal_half_width"
+    assert boxes["he"] is None and boxes["metra"] is None
+    for name, field in boxes.items():
+        if field is not None:
+            assert field in {f.name for f in dataclasses.fields(ALGORITHMS[name].config_type)}, name

@@ -70,3 +70,9 @@ def test_the_comparison_scripts_resume_a_finished_run_to_its_own_epochs_unless_t
     assert len(steps_per_line(run_dir)) == 1  # not trained on to the preset's own epoch count
     train_or_resume(tmp_path, "point-mass-k1", 0, 2)
     assert len(steps_per_line(run_dir)) == 2 and store.read_run_config(run_dir).epochs == 2
+
+
+def test_a_box_width_is_refused_for_a_preset_that_learns_its_goal_space(tmp_path):
+    with pytest.raises(SystemExit, match="goal_half_width: only presets with a hand-set goal box"):
+        train_or_resume(tmp_path, "metra-point-mass", 0, 1, goal_half_width=1.0)
+    assert not any(tmp_path.iterdir())

@@ -76,6 +76,10 @@ class Algorithm:
     skills: str
     """What its skills are (one of :data:`SKILL_KINDS`): what eval, plot, render and phase 2 ask of
     an algorithm, so that none of them looks at its name or type."""
+    hand_set_box: str | None = None
+    """The config field that holds a goal box the user sets by hand (half-widths per goal
+    dimension), for an algorithm whose top goal space is fixed rather than learned; None
+    where there is none. Box sweeps ask for this field instead of an algorithm's name."""
 
     def __post_init__(self):
         if self.skills not in SKILL_KINDS:
@@ -101,7 +105,8 @@ def _skill_algorithm(name: str, config_type: type) -> Algorithm:
 
 ALGORITHMS: dict[str, Algorithm] = {
     "he": Algorithm("he", HEConfig, check_train_config, HE_PRESETS, _he_agent, HE_SHARD_SPLIT, GOAL_SPACES),
-    "gcrl": Algorithm("gcrl", GcrlConfig, check_gcrl_config, GCRL_PRESETS, _he_agent, HE_SHARD_SPLIT, GOAL_SPACES),
+    "gcrl": Algorithm("gcrl", GcrlConfig, check_gcrl_config, GCRL_PRESETS, _he_agent, HE_SHARD_SPLIT, GOAL_SPACES,
+                      hand_set_box="goal_half_width"),
     "diayn": _skill_algorithm("diayn", DiaynConfig),
     "hidio": _skill_algorithm("hidio", HidioConfig),
     "dads": _skill_algorithm("dads", DadsConfig),

@@ -115,7 +115,8 @@ class SkillAgent:
             raise TypeError(f"cfg: a {type(self.cfg).__name__}; expected one of {[c.__name__ for c in METHODS]}")
         check_skill_config(self.cfg)
         object.__setattr__(self, "identity", compile_identity(self.cfg))
-        object.__setattr__(self, "env", make_env(self.cfg.env, impl=self.cfg.impl))
+        object.__setattr__(self, "env", make_env(self.cfg.env, solver_iterations=self.cfg.solver_iterations,
+                                                   integrator=self.cfg.integrator, impl=self.cfg.impl))
 
     @property
     def skill_method(self) -> SkillMethod:

@@ -25,6 +25,12 @@ class SkillConfig:
     """Domain: point_mass, ant_field, ant_cage, half_cheetah_field or half_cheetah_cage."""
     impl: str = "jax"
     """MJX backend: jax (any device; deterministic) or warp (MuJoCo Warp, CUDA GPUs only)."""
+    solver_iterations: int = 0
+    """Constraint-solver iterations of the physics; 0 keeps the model file's (the robots': 1).
+    The same field as HEConfig's, so a comparison can give every method the same physics."""
+    integrator: str = "model"
+    """Integrator of the physics: model (the file's; Euler for every domain), euler,
+    implicitfast or rk4."""
     skill_dim: int = 2
     """Dimension d of the skill z."""
     n: int = 10
@@ -115,7 +121,7 @@ def check_skill_config(cfg: SkillConfig) -> None:
     """Raise ConfigError naming the first invalid field of ``cfg`` and what it allows."""
     if cfg.env not in DOMAINS:
         raise ConfigError(f"env: {cfg.env!r} is unknown; allowed values: {sorted(DOMAINS)}")
-    check_physics(0, "model", cfg.impl)
+    check_physics(cfg.solver_iterations, cfg.integrator, cfg.impl)
     check_counts(cfg, _POSITIVE)
     check_shards(cfg, SHARD_SPLIT)
     check_learning(cfg, _RATES, ())

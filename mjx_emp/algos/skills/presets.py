@@ -14,6 +14,8 @@ point-mass epoch took about 12 s on the 2 shared cores against about 1.5 s for D
 
 from __future__ import annotations
 
+import dataclasses
+
 from mjx_emp.algos.skills.config import DadsConfig, DiaynConfig, HidioConfig, MetraConfig, SkillConfig
 
 _POINT_MASS = dict(env="point_mass", skill_dim=2, n=10, epochs=200, num_envs=16, collect_steps=10, iterations=10,
@@ -59,6 +61,9 @@ for _name, _type in (("diayn", DiaynConfig), ("hidio", HidioConfig), ("dads", Da
                                          _robot(_type, "ant_field"))
     PRESETS[f"{_name}-half-cheetah-cpu"] = (f"{_name.upper()} on the paper's Half Cheetah, skills of 20 actions (CPU)",
                                             _robot(_type, "half_cheetah_field"))
+    PRESETS[f"{_name}-ant-field-cpu-4iter"] = (f"{_name.upper()} on the paper's Ant with 4 solver iterations, as "
+                                               f"ant-field-cpu-k1-4iter (CPU)",
+                                               dataclasses.replace(_robot(_type, "ant_field"), solver_iterations=4))
     PRESETS[f"{_name}-ant-field-small"] = (f"{_name.upper()} beside Table 1's Ant Field Small (GPU scale)",
                                            _type(env="ant_field", **_GPU))
     PRESETS[f"{_name}-half-cheetah-small"] = (f"{_name.upper()} beside Table 1's Half Cheetah Small (GPU scale)",
