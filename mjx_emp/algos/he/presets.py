@@ -153,8 +153,8 @@ def _gcrl(base: HEConfig, goal_half_width: float) -> GcrlConfig:
 GCRL_PRESETS: dict[str, tuple[str, GcrlConfig]] = {
     "gcrl-point-mass": ("GCRL: point-mass-k1's learner, fixed 3 x 3 m goal box", _gcrl(POINT_MASS_K1, 1.5)),
     "gcrl-ant-field-cpu": ("GCRL: ant-field-cpu-k1's learner, fixed 4 x 4 m goal box", _gcrl(ANT_FIELD_CPU_K1, 2.0)),
-    "gcrl-ant-field-cpu-4iter": ("GCRL: ant-field-cpu-k1-4iter's learner (4 solver iterations), fixed 4 x 4 m goal box",
-                                 _gcrl(ANT_FIELD_CPU_K1_4ITER, 2.0)),
+    "gcrl-ant-field-cpu-4iter-ln": ("GCRL: ant-field-cpu-k1-4iter-ln's learner (4 solver iterations, LayerNorm "
+                                    "critic), fixed 4 x 4 m goal box", _gcrl(ANT_FIELD_CPU_K1_4ITER_LN, 2.0)),
     "gcrl-half-cheetah-cpu": ("GCRL: half-cheetah-cpu-k1's learner, fixed 8 m goal box",
                               _gcrl(HALF_CHEETAH_CPU_K1, 4.0)),
     "gcrl-ant-field-small": ("GCRL: ant-field-small-k1's learner, fixed 40 x 40 m goal box (GPU scale)",
