@@ -6,8 +6,8 @@ of the phase-2 region three policies on top of the frozen skills: the learned ph
 the scripted ``aimed`` policy (each subgoal straight at the goal, clipped into the top goal
 space at s) and ``random`` subgoals in that box. The aimed figure bounds what the skills do
 without learning above them; a learned policy far behind it says phase 2 learns too little.
-Rows (run, preset, phase-1 env steps, top box, the three policies' mean minimum distance and
-success) are merged into ``--out``.
+Rows (run, preset, phase-1 env steps, top box, the three policies' mean minimum distance,
+success and fraction of episodes a flip ended early) are merged into ``--out``.
 
     python experiments/chaining.py --runs runs/ant-s0 runs/ant-s1
 """
@@ -49,7 +49,7 @@ def chaining_row(run_dir: Path, name: str, episodes: int) -> dict:
             "seed": agent.cfg.seed, "phase1_epoch": epoch, "phase1_env_steps": float(state.env_steps.value()),
             "top_volume": top["volume"], "phase2_epoch": figures["epoch"], "region": figures["region"],
             "eps": figures["eps"], "attempts": figures["n"],
-            **{f"{p}_{k}": v[k] for p, v in policies.items() for k in ("min_distance", "success")}}
+            **{f"{p}_{k}": v[k] for p, v in policies.items() for k in ("min_distance", "success", "cut_short")}}
 
 
 def main(args: Args) -> None:

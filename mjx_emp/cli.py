@@ -246,7 +246,8 @@ def evaluate(exp: EvalExperiment) -> dict:
         p2, first = report["phase2"], with_phase2[0]
         print(f"phase 2 ({len(with_phase2)} run(s), {first['episodes']} episodes each, region {first['region']}, "
               f"eps {first['eps']}): mean min distance to goal {spread_text(p2['min_distance'])}, "
-              f"success {spread_text(p2['success'])}")
+              f"success {spread_text(p2['success'])}"
+              + (f", ended early by a reset (a flip) {spread_text(p2['cut_short'])}" if "cut_short" in p2 else ""))
         for policy, what in (("aimed", "subgoals aimed straight at each goal"), ("random", "random subgoals")):
             if policy in p2:  # the chaining diagnostic: the same goals without the learned policy
                 print(f"  the same goals with {what}: mean min distance {spread_text(p2[policy]['min_distance'])}, "

@@ -102,10 +102,12 @@ PHASE2_DIAGNOSTICS = ("aimed", "random")
 
 
 def aggregate_phase2(reports: Sequence[dict]) -> dict:
-    """Mean and standard error over runs (seeds) of phase 2's mean minimum distance and success."""
+    """Mean and standard error over runs (seeds) of phase 2's mean minimum distance, success and
+    (where every report has it) the fraction of episodes a reset cut short."""
     if not reports:
         raise ValueError("aggregate_phase2 needs at least one report")
-    figures = {name: mean_and_stderr([r[name] for r in reports]) for name in ("min_distance", "success")}
+    names = ("min_distance", "success") + (("cut_short",) if all("cut_short" in r for r in reports) else ())
+    figures = {name: mean_and_stderr([r[name] for r in reports]) for name in names}
     for policy in PHASE2_DIAGNOSTICS:  # the chaining diagnostic's policies, where every run has them
         if all(policy in r for r in reports):
             figures[policy] = aggregate_phase2([r[policy] for r in reports])

@@ -111,6 +111,16 @@ def test_evaluation_counts_whole_rounds_of_greedy_episodes(tiny_phase2):
     figures = trainer.evaluate(state, jax.random.key(0), episodes=10)
     assert figures["episodes"] == 2 * TINY_PHASE2.num_envs  # 10 episodes round up to two rounds of 8
     assert 0.0 <= figures["success"] <= 1.0 and np.isfinite(figures["min_distance"])
+    assert figures["cut_short"] == 0.0  # a point mass under sane skills never resets
+
+
+def test_evaluation_counts_episodes_a_reset_cut_short(tiny_phase2):
+    """Skills that break the physics (NaN actions) reset every environment at its first step:
+    every episode is cut short, none succeeds."""
+    trainer, _, state = tiny_phase2
+    broken = state.replace(skill_actors=jax.tree.map(lambda x: jnp.full_like(x, jnp.nan), state.skill_actors))
+    figures = trainer.evaluate(broken, jax.random.key(0), episodes=8)
+    assert figures["cut_short"] == 1.0 and figures["success"] == 0.0
 
 
 @pytest.mark.parametrize("field, value, message", [

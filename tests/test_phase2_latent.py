@@ -50,6 +50,16 @@ def test_a_collect_plays_one_episode_per_env_with_at_most_n_attempts(metra_phase
     # a stored attempt's next state is skill_steps actions from its first: the skill moved the point mass
     rows = jax.tree.map(lambda x: np.asarray(x[: int(new.replay.size)]), new.replay.data)
     assert np.abs(rows.next_obs[:, :2] - rows.obs[:, :2]).max() > 1e-3
+    assert int(totals.cut_short) == 0  # a point mass under sane skills never resets
+
+
+def test_a_reset_ends_a_flat_phase_2_episode_and_is_counted(metra_phase2):
+    """Skills that break the physics (NaN actions) reset every environment at its first step."""
+    trainer, _, state = metra_phase2
+    broken = state.replace(skill_actor=jax.tree.map(lambda x: jnp.full_like(x, jnp.nan), state.skill_actor))
+    _, totals = jax.jit(trainer._collect)(broken, jnp.float32(0.0), jnp.bool_(False), jax.random.key(1))
+    assert int(totals.cut_short) == trainer.cfg.num_envs and int(totals.reached) == 0
+    assert int(totals.env_steps) == trainer.cfg.num_envs  # each episode ended at its first step
 
 
 def test_flat_phase2_trains_resumes_bitwise_and_eval_reports_it(tmp_path):

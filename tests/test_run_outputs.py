@@ -181,6 +181,7 @@ def test_eval_reports_every_level_and_phase2_and_aggregates_runs_as_seeds(traine
     assert "coverage (48 greedy top-level skills" in result.stdout
     phase2 = report["runs"][0]["phase2"]
     assert phase2["episodes"] == 16 and phase2["eps"] == 0.6 and phase2["min_distance"] >= 0.0
+    assert phase2["cut_short"] == 0.0 and report["phase2"]["cut_short"]["count"] == 2  # a point mass never resets
     assert report["phase2"]["min_distance"]["count"] == 2 and report["phase2"]["min_distance"]["stderr"] == 0.0
     assert "mean min distance to goal" in result.stdout
     for policy in ("aimed", "random"):  # the chaining diagnostic on the same goals

@@ -192,7 +192,7 @@ class Phase2Loop:
     def _evaluate(self, state: Any, key: jax.Array, rounds: int):
         def one(_, round_key):
             _, totals = self._collect(state, jnp.zeros(()), jnp.bool_(False), round_key)
-            return None, (totals.episodes, totals.success(), totals.mean_distance())
+            return None, (totals.episodes, totals.success(), totals.mean_distance(), totals.cut_fraction())
 
         _, figures = jax.lax.scan(one, None, jax.random.split(key, rounds))
         return figures
@@ -201,14 +201,16 @@ class Phase2Loop:
         """The paper's phase-2 figures of the greedy policy on at least ``episodes`` fresh goals.
 
         Whole rounds of num_envs episodes; returns the mean minimum distance to goal, the
-        success rate (within eps) and the number of episodes.
+        success rate (within eps), the fraction of episodes a reset (a flipped Ant) ended
+        early, and the number of episodes.
         """
         rounds = max(1, math.ceil(episodes / self.cfg.num_envs))
-        counts, success, distance = _jit_evaluate(self, state, key, rounds)
+        counts, success, distance, cut = _jit_evaluate(self, state, key, rounds)
         weights = np.asarray(counts, float)
         return {
             "min_distance": float(np.average(np.asarray(distance), weights=weights)),
             "success": float(np.average(np.asarray(success), weights=weights)),
+            "cut_short": float(np.average(np.asarray(cut), weights=weights)),
             "episodes": int(weights.sum()),
         }
 
@@ -359,7 +361,7 @@ class Phase2Trainer(Phase2Loop):
             distance = jnp.linalg.norm(self.env.goal_of_obs(bottom.next_obs) - top.goal, axis=-1)
             running, per_step = running_min_distance(distance, bottom.valid, top.final, running)
             counted = episodes.ended & (episodes.index == 0)
-            totals = totals.add(stats, top.valid & store, counted, episodes.reached, per_step)
+            totals = totals.add(stats, top.valid & store, counted, episodes.reached, per_step, episodes.cut)
             return replay, running, totals
 
         running = jnp.full(self.cfg.num_envs, jnp.inf)

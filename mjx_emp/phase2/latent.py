@@ -65,6 +65,8 @@ class Attempts:
     closest: jax.Array
     done: jax.Array
     reached: jax.Array
+    cut: jax.Array
+    """Whether a reset (a flipped Ant, broken physics) ended the episode."""
     key: jax.Array
 
 
@@ -130,7 +132,8 @@ class FlatPhase2Trainer(Phase2Loop):
         carry = Attempts(
             env=env_state, goal=goal, skill=self.explore(state.learner.actor, obs, goal, noise, choose_key),
             attempt_obs=obs, count=jnp.zeros(batch, jnp.int32), attempts=jnp.zeros(batch, jnp.int32),
-            closest=jnp.full(batch, jnp.inf), done=jnp.zeros(batch, bool), reached=jnp.zeros(batch, bool), key=key,
+            closest=jnp.full(batch, jnp.inf), done=jnp.zeros(batch, bool), reached=jnp.zeros(batch, bool),
+            cut=jnp.zeros(batch, bool), key=key,
         )
 
         def step(c: Attempts, _):
@@ -160,7 +163,7 @@ class FlatPhase2Trainer(Phase2Loop):
                 skill=jnp.where(new_attempt[:, None], following, c.skill),
                 attempt_obs=jnp.where(new_attempt[:, None], next_obs, c.attempt_obs),
                 count=jnp.where(attempt_end, 0, count), attempts=attempts, closest=closest,
-                done=c.done | episode_end, reached=c.reached | reached, key=key,
+                done=c.done | episode_end, reached=c.reached | reached, cut=c.cut | (attempt_end & broke), key=key,
             )
             return carry, (transition, attempt_end & ~broke, active)
 
@@ -170,7 +173,7 @@ class FlatPhase2Trainer(Phase2Loop):
         totals = CollectTotals(
             env_steps=steps, transitions=jnp.where(store, stored.sum(dtype=jnp.int32), 0), episodes=jnp.int32(batch),
             reached=carry.reached.sum(dtype=jnp.int32), distance=carry.closest.sum(),
-            flip_resets=carry.env.flip_resets.sum(), cut_short=jnp.int32(0),
+            flip_resets=carry.env.flip_resets.sum(), cut_short=carry.cut.sum(dtype=jnp.int32),
         )
         return state.replace(replay=replay, env_steps=state.env_steps.add(steps)), totals
 
