@@ -9,8 +9,8 @@ DIAYN and HIDIO the posterior's mean standard deviation, and phase 2's mean mini
 distance to goal on 400 goals. Rows carry ``algo``, ``env``, ``preset``, ``seed``,
 ``env_steps``, ``wall_s`` (phase-1 training time summed from the run's metrics, compile
 included), ``coverage_cells``, ``posterior_std``, ``phase2_min_distance``,
-``phase2_success`` and ``phase2_curve`` (phase-2 env steps and greedy mean minimum distance
-per epoch). ``python experiments/baselines.py --presets point-mass-k1
+``phase2_success``, ``phase2_cut_short`` (the fraction of phase-2 episodes a flip ended early)
+and ``phase2_curve`` (phase-2 env steps and greedy mean minimum distance per epoch). ``python experiments/baselines.py --presets point-mass-k1
 metra-point-mass --seeds 0 1 2 3``; rows are merged into ``--out``.
 """
 
@@ -138,13 +138,15 @@ def evaluate_run(run_dir: Path, preset: str, seed: int) -> dict:
 
 
 def phase2_of(run_dir: Path, seed: int, episodes: int = 400) -> dict:
-    """RUN_DIR/phase2's figures (trained with ``--phase2``), or None where it has none."""
+    """RUN_DIR/phase2's figures (mean minimum distance, success, the fraction of episodes a flip
+    ended early, the training curve), or None where it has none."""
     phase2_dir = run_dir / store.PHASE2_SUBDIR
     if not (phase2_dir / store.CONFIG_FILE).exists():
-        return {"phase2_min_distance": None, "phase2_success": None, "phase2_curve": None}
+        return {"phase2_min_distance": None, "phase2_success": None, "phase2_cut_short": None, "phase2_curve": None}
     figures = phase2_figures(*jobs.load_phase2(phase2_dir), jax.random.key(1000 + seed), episodes)
     steps, distances = phase2_curve(run_dir)
     return {"phase2_min_distance": figures["min_distance"], "phase2_success": figures["success"],
+            "phase2_cut_short": figures["cut_short"],
             "phase2_curve": [[float(a), float(b)] for a, b in zip(steps, distances)]}
 
 
@@ -182,7 +184,8 @@ def draw_counts(rows: list[dict]) -> str:
 
 def report_table(rows: list[dict]) -> str:
     """A Markdown table of ROWS by preset: seeds, env steps, wall time, coverage and phase 2's
-    mean min distance, each as mean ± std (standard error)."""
+    mean min distance, success and flip-ended fraction (where rows have it), each as mean ± std
+    (standard error)."""
     def cell(values: list[float], digits: str = ".3g") -> str:
         if not values:
             return "-"
@@ -190,7 +193,8 @@ def report_table(rows: list[dict]) -> str:
         return f"{m['mean']:{digits}} ± {m['std']:.2g} ({m['stderr']:.2g})"
 
     lines = ["| preset | seeds | env steps | wall s (mean) | coverage cells | coverage draws per seed | posterior std | "
-             "phase-2 min distance (m) | phase-2 success |", "|---|---|---|---|---|---|---|---|---|"]
+             "phase-2 min distance (m) | phase-2 success | phase-2 episodes a flip ended |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for preset in dict.fromkeys(r["preset"] for r in rows):
         mine = [r for r in rows if r["preset"] == preset]
         stds = [r["posterior_std"] for r in mine if r["posterior_std"] is not None]
@@ -200,7 +204,8 @@ def report_table(rows: list[dict]) -> str:
             f"| {cell([r['coverage_cells'] for r in mine])} | {draw_counts(mine)} "
             f"| {f'{np.mean(stds):.3g}' if stds else '-'} "
             f"| {cell([r['phase2_min_distance'] for r in done])} "
-            f"| {cell([r['phase2_success'] for r in done], '.2f')} |")
+            f"| {cell([r['phase2_success'] for r in done], '.2f')} "
+            f"| {cell([r['phase2_cut_short'] for r in done if r.get('phase2_cut_short') is not None], '.2f')} |")
     return "\n".join(lines)
 
 

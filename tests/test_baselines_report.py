@@ -20,7 +20,11 @@ def test_report_table_gives_mean_std_and_standard_error_per_preset():
     a_line = next(line for line in lines if line.startswith("| a |"))
     assert "| 2 |" in a_line and "4 ± 2.8 (2)" in a_line and "11 ± 1.4 (1)" in a_line
     b_line = next(line for line in lines if line.startswith("| b |"))
-    assert b_line.endswith("| - | - |")  # no phase 2 trained
+    assert b_line.endswith("| - | - | - |")  # no phase 2 trained
+    assert a_line.endswith("| - |")  # rows without a flip fraction (older results) leave its column empty
+    flips = [{**_row("c", 0, 1e6, 2, 3.0), "phase2_cut_short": 0.1}, {**_row("c", 1, 1e6, 2, 4.0), "phase2_cut_short": 0.3}]
+    c_line = next(line for line in report_table(flips).splitlines() if line.startswith("| c |"))
+    assert c_line.endswith("| 0.20 ± 0.14 (0.1) |")
 
 
 def test_charts_draw_methods_with_and_without_phase2_curves(tmp_path):
