@@ -22,7 +22,7 @@ def test_report_table_gives_mean_std_and_standard_error_per_preset():
     b_line = next(line for line in lines if line.startswith("| b |"))
     assert b_line.endswith("| - | - | - |")  # no phase 2 trained
     assert a_line.endswith("| - |")  # rows without a flip fraction (older results) leave its column empty
-    flips = [{**_row("c", 0, 1e6, 2, 3.0), "phase2_cut_short": 0.1}, {**_row("c", 1, 1e6, 2, 4.0), "phase2_cut_short": 0.3}]
+    flips = [{**_row("c", seed, 1e6, 2, 3.0), "phase2_cut_short": cut} for seed, cut in ((0, 0.1), (1, 0.3))]
     c_line = next(line for line in report_table(flips).splitlines() if line.startswith("| c |"))
     assert c_line.endswith("| 0.20 ± 0.14 (0.1) |")
 
