@@ -247,12 +247,12 @@ def chart_label(preset: str) -> str:
     """A preset's name in the charts: its method (``HE k=1``, ``METRA``), GCRL with its box side."""
     name, width = re.fullmatch(r"(.*?)(?:-w([0-9.]+))?", preset).groups()
     config = all_presets()[name][1]
-    label = method_label(config)
-    box = algorithm_of(config).hand_set_box
-    if box is not None:
-        side = 2 * (float(width) if width else getattr(config, box)[0])
-        label = f"GCRL {side:g} m box" if len(DOMAINS[config.env].goal_qpos) == 1 else f"GCRL {side:g}x{side:g} m"
-    return label
+    algorithm = algorithm_of(config)
+    if algorithm.hand_set_box is None:
+        return method_label(config)
+    side = 2 * (float(width) if width else getattr(config, algorithm.hand_set_box)[0])
+    box = f"{side:g} m box" if len(DOMAINS[config.env].goal_qpos) == 1 else f"{side:g}x{side:g} m"
+    return f"{algorithm.name.upper()} {box}"
 
 
 def curve_of(row: dict) -> tuple[np.ndarray, np.ndarray] | None:

@@ -1,6 +1,6 @@
 """The comparison table of experiments/baselines.py: rows at one budget, mean ± std (stderr)."""
 
-from baselines import chart_colours, report_table, rows_at_budget
+from baselines import chart_colours, chart_label, report_table, rows_at_budget
 
 
 def _row(preset, seed, steps, cells, distance):
@@ -35,6 +35,14 @@ def test_charts_draw_methods_with_and_without_phase2_curves(tmp_path):
     without = {**_row("metra-ant-field-cpu", 0, 1e6, 8, 14.0), "env": "ant_field", "run_dir": str(tmp_path / "gone")}
     path = draw_charts([with_curve, without], tmp_path / "chart.png")
     assert path.exists() and path.stat().st_size > 10_000
+
+
+def test_chart_labels_name_the_method_and_a_hand_set_box_by_its_side():
+    assert chart_label("ant-field-cpu-k2") == "HE k=2"
+    assert chart_label("metra-ant-field-cpu") == "METRA"
+    assert chart_label("gcrl-ant-field-cpu") == "GCRL 4x4 m"  # the preset's own box, half-width 2 m
+    assert chart_label("gcrl-ant-field-cpu-w0.5") == "GCRL 1x1 m"
+    assert chart_label("gcrl-half-cheetah-cpu-w15") == "GCRL 30 m box"  # one goal dimension
 
 
 def test_chart_colours_keep_one_hue_per_method_and_never_share_a_colour():
