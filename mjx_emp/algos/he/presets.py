@@ -80,6 +80,9 @@ HALF_CHEETAH_CPU_K1_4ITER = dataclasses.replace(HALF_CHEETAH_CPU_K1, solver_iter
 # from collapsing over the full 2.0 M steps (docs/presets.md#the-accurate-physics-presets).
 ANT_FIELD_CPU_K1_4ITER_LN = dataclasses.replace(ANT_FIELD_CPU_K1_4ITER, critic_layer_norm=True)
 ANT_FIELD_CPU_K2_4ITER_LN = dataclasses.replace(ANT_FIELD_CPU_K2_4ITER, critic_layer_norm=True)
+# The same with half the goal-space posterior's sigma_gs: the box settles about sqrt(2) sigma_gs past the
+# skills' reach, so a smaller sigma_gs trades box size for the skills' success (docs/presets.md#a-tighter-box).
+ANT_FIELD_CPU_K1_4ITER_LN_GS025 = dataclasses.replace(ANT_FIELD_CPU_K1_4ITER_LN, sigma_gs=(0.25,))
 
 # The cages at CPU scale: the best CPU learner of each robot's field, in its Table-1 cage
 # (docs/presets.md#the-cages-on-a-cpu).
@@ -104,6 +107,8 @@ PRESETS: dict[str, tuple[str, HEConfig]] = {
                                   ANT_FIELD_CPU_K1_4ITER_LN),
     "ant-field-cpu-k2-4iter-ln": ("CPU: ant-field-cpu-k2-4iter with a LayerNorm critic at both levels",
                                   ANT_FIELD_CPU_K2_4ITER_LN),
+    "ant-field-cpu-k1-4iter-ln-gs0.25": ("CPU: ant-field-cpu-k1-4iter-ln with sigma_gs 0.25 instead of 0.5: a box "
+                                         "that settles nearer the skills' reach", ANT_FIELD_CPU_K1_4ITER_LN_GS025),
     "half-cheetah-cpu-k1-4iter": ("CPU: half-cheetah-cpu-k1 with 4 solver iterations (accurate contacts)",
                                   HALF_CHEETAH_CPU_K1_4ITER),
     "ant-field-cpu-k1-her-ln": ("CPU: ant-field-cpu-k1 with hindsight goals and a LayerNorm critic, 120 epochs",
