@@ -248,7 +248,9 @@ def evaluate(exp: EvalExperiment) -> dict:
               f"eps {first['eps']}): mean min distance to goal {spread_text(p2['min_distance'])}, "
               f"success {spread_text(p2['success'])}"
               + (f", ended early by a reset (a flip) {spread_text(p2['cut_short'])}" if "cut_short" in p2 else ""))
-        for policy, what in (("aimed", "subgoals aimed straight at each goal"), ("random", "random subgoals")):
+        for policy, what in (("aimed", "subgoals aimed straight at each goal"),
+                             ("aimed_half", "subgoals aimed within the top box's central half"),
+                             ("random", "random subgoals")):
             if policy in p2:  # the chaining diagnostic: the same goals without the learned policy
                 print(f"  the same goals with {what}: mean min distance {spread_text(p2[policy]['min_distance'])}, "
                       f"success {spread_text(p2[policy]['success'])}")

@@ -97,8 +97,10 @@ def aggregate_agent(reports: Sequence[dict]) -> dict:
     return {name: mean_and_stderr([r[name] for r in reports]) for name in ("coverage_cells", "volume_x_success")}
 
 
-PHASE2_DIAGNOSTICS = ("aimed", "random")
-"""Phase-2 policies evaluated beside the learned one on the same goals (``Phase2Trainer.top``)."""
+PHASE2_DIAGNOSTICS = ("aimed", "aimed_half", "random")
+"""Phase-2 policies evaluated beside the learned one on the same goals (``Phase2Trainer.top``):
+subgoals aimed straight at the goal within the top box, the same within its central half
+(each half-width halved), and uniform in the box."""
 
 
 def aggregate_phase2(reports: Sequence[dict]) -> dict:

@@ -215,6 +215,11 @@ def test_the_aimed_policy_asks_for_the_goal_itself_inside_the_top_box_and_its_ed
     np.testing.assert_allclose(policy(params, obs, inside, jax.random.key(0)), inside - here, rtol=1e-5, atol=1e-6)
     far = here + shift + 10.0 * half_width  # out of reach: the box's corner towards it
     np.testing.assert_allclose(policy(params, obs, far, jax.random.key(0)), shift + half_width, rtol=1e-5, atol=1e-6)
+    short = dataclasses.replace(trainer, top="aimed_half").hierarchy.policies[aimed.level]
+    np.testing.assert_allclose(short(params, obs, far, jax.random.key(0)), shift + 0.5 * half_width, rtol=1e-5,
+                               atol=1e-6)  # the corner of the box's central half
+    near = here + shift + 0.25 * half_width
+    np.testing.assert_allclose(short(params, obs, near, jax.random.key(0)), near - here, rtol=1e-5, atol=1e-6)
     randomly = dataclasses.replace(trainer, top="random").hierarchy.policies[aimed.level]
     draws = jax.vmap(lambda k: randomly(params, obs, far, k))(jax.random.split(jax.random.key(1), 256))
     assert bool(jnp.all(jnp.abs(draws - shift) <= half_width + 1e-6))  # uniform in the box, whatever the goal

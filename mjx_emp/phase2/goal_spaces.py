@@ -36,7 +36,7 @@ from mjx_emp.counters import StepCounter
 from mjx_emp.errors import ConfigError
 from mjx_emp.learners.common import all_finite
 from mjx_emp.learners.ddpg import DDPGLearner, GoalTransition, ddpg_losses, ddpg_step, goal_transitions
-from mjx_emp.metrics import epoch_header, running_min_distance
+from mjx_emp.metrics import PHASE2_DIAGNOSTICS, epoch_header, running_min_distance
 from mjx_emp.nets import (
     MLP,
     LevelParams,
@@ -253,7 +253,7 @@ class Phase2Loop:
         return None
 
 
-TOP_POLICIES = ("learned", "aimed", "random")
+TOP_POLICIES = ("learned",) + PHASE2_DIAGNOSTICS
 """What can sit on top of the frozen skills in phase 2 (see ``Phase2Trainer.top``)."""
 
 
@@ -269,9 +269,10 @@ class Phase2Trainer(Phase2Loop):
     cfg: Phase2Config = dataclasses.field(compare=False)
     top: str = "learned"
     """The added level's policy: ``learned`` (the phase-2 actor), or for the chaining
-    diagnostic ``aimed`` (each subgoal straight at the goal, clipped into the top box at s)
-    or ``random`` (uniform in that box); the latter two ignore the actor."""
-    diagnostic_tops = ("aimed", "random")  # a class attribute, not a field
+    diagnostic ``aimed`` (each subgoal straight at the goal, clipped into the top box at s),
+    ``aimed_half`` (the same, clipped into the box's central half) or ``random`` (uniform in
+    that box); the diagnostics ignore the actor."""
+    diagnostic_tops = PHASE2_DIAGNOSTICS  # a class attribute, not a field
     hierarchy: Hierarchy = dataclasses.field(init=False, compare=False, repr=False)
     identity: Phase2Config = dataclasses.field(init=False, repr=False)
     """What it compares and hashes by, beside ``phase1`` and ``top``: ``cfg`` without its epoch count."""
@@ -284,7 +285,9 @@ class Phase2Trainer(Phase2Loop):
         k, phase1 = self.level, self.phase1.cfg
         box = self.phase1.nets.learned_box(k - 1)
         policy = {"learned": lambda: level_policy(self.env, self.actor_net, box),
-                  "aimed": lambda: aimed_policy(self.env, box), "random": lambda: random_policy(box)}[self.top]()
+                  "aimed": lambda: aimed_policy(self.env, box),
+                  "aimed_half": lambda: aimed_policy(self.env, box, reach=0.5),
+                  "random": lambda: random_policy(box)}[self.top]()
         hierarchy = Hierarchy(
             self.env, self.phase1.hierarchy.policies + (policy,),
             n=tuple(phase1.n) + (self.cfg.n,), eps=tuple(phase1.eps) + (self.cfg.eps,),

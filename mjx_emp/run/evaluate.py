@@ -54,7 +54,7 @@ def phase2_figures(trainer, epoch: int, state, key, episodes: int) -> dict:
     """The paper's phase-2 figure of a phase-2 state: its task and the greedy policy's mean
     minimum distance to goal and success on at least ``episodes`` goals from the region; where
     the trainer offers them (``diagnostic_tops``), the same figures of the scripted policies on
-    the same goals: ``aimed`` (each subgoal straight at the goal) and ``random`` subgoals."""
+    the same goals (:data:`mjx_emp.metrics.PHASE2_DIAGNOSTICS`)."""
     cfg = trainer.cfg
     figures = {"epoch": epoch, "n": cfg.n, "eps": cfg.eps, "region": list(cfg.region),
                "region_offset": list(cfg.region_offset), **trainer.evaluate(state, key, episodes)}
