@@ -123,6 +123,38 @@ def test_evaluation_counts_episodes_a_reset_cut_short(tiny_phase2):
     assert figures["cut_short"] == 1.0 and figures["success"] == 0.0
 
 
+def test_attempts_a_reset_ended_are_kept_as_terminal_rows_only_when_asked(tiny_phase2):
+    """With ``learn_from_resets`` the attempt a reset ended is stored at its last state before the
+    reset, not reached and marked cut, and it trains; without it no such attempt is stored."""
+    trainer, skills_state, _ = tiny_phase2
+    for learn in (False, True):
+        keeping = Phase2Trainer(trainer.phase1, dataclasses.replace(TINY_PHASE2, learn_from_resets=learn))
+        state = keeping.init(skills_state)
+        broken = state.replace(skill_actors=jax.tree.map(lambda x: jnp.full_like(x, jnp.nan), state.skill_actors))
+        new, totals = jax.jit(keeping._collect)(broken, jnp.float32(0.0), jnp.bool_(True), jax.random.key(1))
+        size = int(new.replay.size)
+        assert int(totals.cut_short) == TINY_PHASE2.num_envs
+        if not learn:
+            assert size == 0 and new.replay.data.cut is None
+            continue
+        assert size >= TINY_PHASE2.num_envs
+        rows = jax.tree.map(lambda x: np.asarray(x[:size]), new.replay.data)
+        assert rows.cut.all() and not rows.reached.any()
+        initial = np.broadcast_to(keeping.phase1.initial_obs, rows.next_obs.shape)
+        np.testing.assert_allclose(rows.next_obs, initial, atol=1e-6)  # the state before each reset: a fresh start
+        _, losses = jax.jit(keeping.update)(new.replace(skill_actors=state.skill_actors), jax.random.key(2))
+        assert np.isfinite(np.asarray(losses)).all()
+
+
+def test_a_cut_backup_scores_the_fall_for_ever_and_bootstraps_nothing():
+    from mjx_emp.learners.ddpg import Backup, cut_backup
+
+    backup = Backup(reward=jnp.array([-2.0, -2.0]), discount=jnp.array([0.95, 0.0]), next_obs=jnp.zeros((2, 3)))
+    cut = cut_backup(backup, jnp.array([True, False]), 0.95)
+    np.testing.assert_allclose(np.asarray(cut.reward), [-40.0, -2.0], rtol=1e-6)
+    np.testing.assert_allclose(np.asarray(cut.discount), [0.0, 0.0])
+
+
 @pytest.mark.parametrize("field, value, message", [
     ("region", (2.0,), "region: the domain's goal space has 2"),
     ("region", (2.0, -1.0), "region: give one length > 0"),

@@ -44,6 +44,9 @@ class GoalTransition:
     successor: jax.Array | None = None
     """Slot of the next stored row of the same episode (the buffer's capacity: none), in a
     replay that links episodes (see :func:`mjx_emp.replay.link_episode_rows`); else None."""
+    cut: jax.Array | None = None
+    """Whether a reset (a flipped Ant) ended the task during this action, ``next_obs`` being
+    the last state before it, in a replay that keeps such rows (see :func:`cut_backup`); else None."""
 
 
 @struct.dataclass
@@ -60,6 +63,13 @@ def one_step_backup(batch: GoalTransition, env: Env, sigma: float, gamma: float)
     """The paper's one-step target: r = log N(goal; h(s'), sigma), discount gamma until reached."""
     reward = gce.goal_conditioned_reward(batch.goal, env.goal_of_obs(batch.next_obs), sigma)
     return Backup(reward=reward, discount=gce.goal_conditioned_discount(batch.reached, gamma), next_obs=batch.next_obs)
+
+
+def cut_backup(backup: Backup, cut: jax.Array, gamma: float) -> Backup:
+    """``backup`` where a reset ended the task: the robot stays where it fell, so the action is
+    scored as its reward for ever after, r / (1 - gamma), with nothing left to bootstrap."""
+    return backup.replace(reward=jnp.where(cut, backup.reward / (1.0 - gamma), backup.reward),
+                          discount=jnp.where(cut, 0.0, backup.discount))
 
 
 def n_step_backup(rows: GoalTransition, slots: jax.Array, batch: GoalTransition, env: Env, sigma: float,

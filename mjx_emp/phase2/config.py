@@ -63,6 +63,11 @@ class Phase2Config:
     """Polyak rate of the target networks."""
     action_noise: float = 0.2
     """Exploration std of the subgoals, in units of the top goal space's half-width."""
+    learn_from_resets: bool = False
+    """Keep the attempts that a reset (a flipped Ant) ended, as terminal rows scored as if the
+    robot stayed where it fell (``learners.ddpg.cut_backup``), so the policy learns what a
+    flip costs. Off: those attempts are dropped, as every transition a reset cuts is in phase 1,
+    and the policy never sees one."""
     phase1_epoch: int = -1
     """Phase-1 checkpoint to build on; -1 means the newest one of the run."""
     seed: int = 0

@@ -35,7 +35,15 @@ from mjx_emp.checks import compile_identity
 from mjx_emp.counters import StepCounter
 from mjx_emp.errors import ConfigError
 from mjx_emp.learners.common import all_finite
-from mjx_emp.learners.ddpg import DDPGLearner, GoalTransition, ddpg_losses, ddpg_step, goal_transitions
+from mjx_emp.learners.ddpg import (
+    DDPGLearner,
+    GoalTransition,
+    cut_backup,
+    ddpg_losses,
+    ddpg_step,
+    goal_transitions,
+    one_step_backup,
+)
 from mjx_emp.metrics import PHASE2_DIAGNOSTICS, epoch_header, running_min_distance
 from mjx_emp.nets import (
     MLP,
@@ -146,7 +154,8 @@ class Phase2Loop:
         critic = self.critic_net.init(critic_key, jnp.concatenate([goal_features(env, obs, goal), action]))
         actor_tx, critic_tx = self.optimizers
         learner = DDPGLearner(actor, critic, actor, critic, actor_tx.init(actor), critic_tx.init(critic))
-        row = GoalTransition(obs, goal, action, obs, jnp.zeros((), bool))
+        row = GoalTransition(obs, goal, action, obs, jnp.zeros((), bool),
+                             cut=jnp.zeros((), bool) if self.cfg.learn_from_resets else None)
         return learner, replay_init(row, self.cfg.replay_capacity)
 
     def update(self, state: Any, key: jax.Array) -> tuple[Any, jax.Array]:
@@ -157,7 +166,10 @@ class Phase2Loop:
 
         def step(learner: DDPGLearner, step_key):
             batch = replay_sample(state.replay, step_key, cfg.batch_size)
-            losses = ddpg_losses(act, self.q_value, learner, batch, self.env, cfg.sigma, cfg.gamma)
+            backup = one_step_backup(batch, self.env, cfg.sigma, cfg.gamma)
+            if batch.cut is not None:  # learn_from_resets: attempts a reset ended are kept, as terminal rows
+                backup = cut_backup(backup, batch.cut, cfg.gamma)
+            losses = ddpg_losses(act, self.q_value, learner, batch, self.env, cfg.sigma, cfg.gamma, backup)
             return ddpg_step(learner, losses, actor_tx, critic_tx, cfg.tau)
 
         learner, losses = jax.lax.scan(step, state.learner, jax.random.split(key, cfg.grad_steps))
@@ -360,7 +372,13 @@ class Phase2Trainer(Phase2Loop):
         def absorb(kept, transitions, episodes, stats):
             replay, running, totals = kept
             top, bottom = transitions[k], transitions[0]
-            replay = replay_insert(replay, flatten_rows(goal_transitions(top)), flatten_rows(top.valid) & store)
+            rows, kept = goal_transitions(top), top.valid
+            if self.cfg.learn_from_resets:  # the attempt a reset ended, at its last state before the reset
+                cut = episodes.cut
+                rows = rows.replace(next_obs=jnp.where(cut[..., None], episodes.final_obs, rows.next_obs),
+                                    reached=rows.reached & ~cut, cut=cut)
+                kept = kept | cut
+            replay = replay_insert(replay, flatten_rows(rows), flatten_rows(kept) & store)
             distance = jnp.linalg.norm(self.env.goal_of_obs(bottom.next_obs) - top.goal, axis=-1)
             running, per_step = running_min_distance(distance, bottom.valid, top.final, running)
             counted = episodes.ended & (episodes.index == 0)

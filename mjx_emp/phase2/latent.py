@@ -154,8 +154,9 @@ class FlatPhase2Trainer(Phase2Loop):
             reached = attempt_end & ~broke & (distance < cfg.eps)
             attempts = c.attempts + attempt_end.astype(jnp.int32)
             episode_end = attempt_end & (reached | (attempts >= cfg.n) | broke)
-            transition = GoalTransition(obs=c.attempt_obs, goal=c.goal, action=c.skill, next_obs=next_obs,
-                                        reached=reached)
+            fell = attempt_end & broke
+            transition = GoalTransition(obs=c.attempt_obs, goal=c.goal, action=c.skill, next_obs=scored,
+                                        reached=reached, cut=fell if cfg.learn_from_resets else None)
             following = self.explore(state.learner.actor, next_obs, c.goal, noise, choose_key)
             new_attempt = attempt_end & ~episode_end
             carry = Attempts(
@@ -163,9 +164,10 @@ class FlatPhase2Trainer(Phase2Loop):
                 skill=jnp.where(new_attempt[:, None], following, c.skill),
                 attempt_obs=jnp.where(new_attempt[:, None], next_obs, c.attempt_obs),
                 count=jnp.where(attempt_end, 0, count), attempts=attempts, closest=closest,
-                done=c.done | episode_end, reached=c.reached | reached, cut=c.cut | (attempt_end & broke), key=key,
+                done=c.done | episode_end, reached=c.reached | reached, cut=c.cut | fell, key=key,
             )
-            return carry, (transition, attempt_end & ~broke, active)
+            kept = attempt_end & ~broke
+            return carry, (transition, kept | fell if cfg.learn_from_resets else kept, active)
 
         carry, (transitions, stored, active) = jax.lax.scan(step, carry, None, length=cfg.n * skill_steps)
         replay = replay_insert(state.replay, flatten_rows(transitions), flatten_rows(stored) & store)
