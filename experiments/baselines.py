@@ -109,14 +109,17 @@ def train_or_resume(base: Path, preset: str, seed: int, epochs: int | None,
     return run_dir
 
 
-def train_phase2(run_dir: Path) -> None:
-    """Phase 2 on the run's skills with its domain's preset (resumed if it is there)."""
-    phase2_dir = run_dir / store.PHASE2_SUBDIR
+def train_phase2(run_dir: Path, subdir: str = store.PHASE2_SUBDIR, **changes) -> None:
+    """Phase 2 on the run's skills with its domain's preset, its fields replaced by ``changes``,
+    into RUN_DIR/``subdir`` (resumed if it is there)."""
+    phase2_dir = run_dir / subdir
     if (phase2_dir / store.CONFIG_FILE).exists():
         jobs.resume_phase2(ResumeExperiment(resume=str(phase2_dir)))
         return
     preset = phase2_preset_for(store.read_run_config(run_dir, "run_dir"))
-    jobs.train_phase2(Phase2Experiment(run_dir=str(run_dir), config=PHASE2_PRESETS[preset][2]))
+    config = dataclasses.replace(PHASE2_PRESETS[preset][2], **changes)
+    out = "" if subdir == store.PHASE2_SUBDIR else str(phase2_dir)  # empty: the CLI's own RUN_DIR/phase2
+    jobs.train_phase2(Phase2Experiment(run_dir=str(run_dir), config=config, out=out))
 
 
 def evaluate_run(run_dir: Path, preset: str, seed: int) -> dict:

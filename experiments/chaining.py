@@ -36,14 +36,21 @@ class Args:
     episodes: int = 400
     train: bool = True
     """Train (or resume) phase 2 first; False evaluates the phase-2 directories as they are."""
+    learn_from_resets: bool = False
+    """Phase 2 keeps the attempts a flip ended (``Phase2Config.learn_from_resets``); it is trained
+    into RUN_DIR/phase2-resets and the rows' variant ends in ``+resets``."""
     out: str = "benchmarks/results/chaining_cpu.json"
 
 
-def chaining_row(run_dir: Path, name: str, episodes: int) -> dict:
-    """One run's row: its top box and the phase-2 figures of every policy on the same goals."""
+RESETS_SUBDIR = "phase2-resets"
+
+
+def chaining_row(run_dir: Path, name: str, episodes: int, subdir: str = store.PHASE2_SUBDIR) -> dict:
+    """One run's row: its top box and the phase-2 figures (of RUN_DIR/``subdir``) of every policy
+    on the same goals."""
     agent, epoch, state = jobs.load_run(run_dir)
     top = agent.goal_spaces(state)[-1]
-    figures = phase2_figures(*jobs.load_phase2(run_dir / store.PHASE2_SUBDIR), jax.random.key(7), episodes)
+    figures = phase2_figures(*jobs.load_phase2(run_dir / subdir), jax.random.key(7), episodes)
     policies = {"learned": figures, **{p: figures[p] for p in PHASE2_DIAGNOSTICS if p in figures}}
     return {"variant": name or run_dir.name, "run_dir": str(run_dir), "env": agent.cfg.env, "k": agent.cfg.k,
             "seed": agent.cfg.seed, "phase1_epoch": epoch, "phase1_env_steps": float(state.env_steps.value()),
@@ -55,10 +62,13 @@ def chaining_row(run_dir: Path, name: str, episodes: int) -> dict:
 def main(args: Args) -> None:
     if not args.runs:
         raise SystemExit("runs: give at least one phase-1 run directory")
+    subdir = RESETS_SUBDIR if args.learn_from_resets else store.PHASE2_SUBDIR
     for run in map(Path, args.runs):
         if args.train:
-            train_phase2(run)
-        row = chaining_row(run, args.name, args.episodes)
+            train_phase2(run, subdir, learn_from_resets=args.learn_from_resets)
+        row = chaining_row(run, args.name, args.episodes, subdir)
+        if args.learn_from_resets:
+            row["variant"] += "+resets"
         print(row, flush=True)
         merge_row(Path(args.out), row, key=("variant", "run_dir"))
 
