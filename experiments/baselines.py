@@ -258,6 +258,27 @@ def chart_label(preset: str) -> str:
     return f"{algorithm.name.upper()} {box}"
 
 
+def chart_labels(presets: list[str]) -> list[str]:
+    """Each preset's chart label (``chart_label``); where several share one, each gets the
+    config fields that tell them apart (``HE k=1 (sigma_gs 0.25)``), else its preset name."""
+    labels = [chart_label(p) for p in presets]
+    for label in set(labels):
+        group = [i for i, other in enumerate(labels) if other == label]
+        if len(group) < 2:
+            continue
+        configs = [dataclasses.asdict(all_presets()[re.sub(r"-w[0-9.]+$", "", presets[i])][1]) for i in group]
+        differing = [field for field in configs[0] if any(c[field] != configs[0][field] for c in configs)][:2]
+        for i, config in zip(group, configs):
+            told = ", ".join(f"{field} {_plain(config[field])}" for field in differing)
+            labels[i] = f"{label} ({told or presets[i]})"
+    return labels
+
+
+def _plain(value) -> str:
+    """A config value as a legend shows it: tuples without brackets."""
+    return ", ".join(map(str, value)) if isinstance(value, (list, tuple)) else str(value)
+
+
 def curve_of(row: dict) -> tuple[np.ndarray, np.ndarray] | None:
     """A row's phase-2 curve: the one it stores, else read from its run directory if that is still there."""
     if row.get("phase2_curve"):
@@ -289,7 +310,7 @@ def draw_charts(rows: list[dict], path: Path) -> Path:
 
     fig, (phase2, bars) = plt.subplots(1, 2, figsize=(11, 4.2))
     presets = list(dict.fromkeys(r["preset"] for r in rows))
-    labels, colours = [chart_label(p) for p in presets], chart_colours(presets)
+    labels, colours = chart_labels(presets), chart_colours(presets)
     seeds = {p: [r for r in rows if r["preset"] == p] for p in presets}
     curves = {p: [c for c in map(curve_of, seeds[p]) if c is not None] for p in presets}
     if any(curves.values()):

@@ -1,6 +1,6 @@
 """The comparison table of experiments/baselines.py: rows at one budget, mean ± std (stderr)."""
 
-from baselines import chart_colours, chart_label, report_table, rows_at_budget
+from baselines import chart_colours, chart_label, chart_labels, report_table, rows_at_budget
 
 
 def _row(preset, seed, steps, cells, distance):
@@ -43,6 +43,12 @@ def test_chart_labels_name_the_method_and_a_hand_set_box_by_its_side():
     assert chart_label("gcrl-ant-field-cpu") == "GCRL 4x4 m"  # the preset's own box, half-width 2 m
     assert chart_label("gcrl-ant-field-cpu-w0.5") == "GCRL 1x1 m"
     assert chart_label("gcrl-half-cheetah-cpu-w15") == "GCRL 30 m box"  # one goal dimension
+
+
+def test_presets_that_share_a_label_are_told_apart_by_the_fields_where_they_differ():
+    labels = chart_labels(["ant-field-cpu-k1-4iter-ln", "ant-field-cpu-k1-4iter-ln-gs0.25", "metra-ant-field-cpu",
+                           "gcrl-ant-field-cpu-w2", "gcrl-ant-field-cpu-w8"])
+    assert labels == ["HE k=1 (sigma_gs 0.5)", "HE k=1 (sigma_gs 0.25)", "METRA", "GCRL 4x4 m", "GCRL 16x16 m"]
 
 
 def test_chart_colours_keep_one_hue_per_method_and_never_share_a_colour():
