@@ -21,6 +21,7 @@ import dataclasses
 import json
 import re
 from pathlib import Path
+from typing import Any
 
 import jax
 import numpy as np
@@ -246,14 +247,20 @@ def phase2_curve(run_dir: Path) -> tuple[np.ndarray, np.ndarray] | None:
     return np.array([m["env_steps"] for m in lines]), np.array([m["min_distance"] for m in lines])
 
 
+def preset_and_box(preset: str) -> tuple[Any, float | None]:
+    """A row's preset name read as (the preset's config, the ``-wW`` box half-width it was run
+    with, None where it has no such suffix)."""
+    name, width = re.fullmatch(r"(.*?)(?:-w([0-9.]+))?", preset).groups()
+    return all_presets()[name][1], float(width) if width else None
+
+
 def chart_label(preset: str) -> str:
     """A preset's name in the charts: its method (``HE k=1``, ``METRA``), GCRL with its box side."""
-    name, width = re.fullmatch(r"(.*?)(?:-w([0-9.]+))?", preset).groups()
-    config = all_presets()[name][1]
+    config, width = preset_and_box(preset)
     algorithm = algorithm_of(config)
     if algorithm.hand_set_box is None:
         return method_label(config)
-    side = 2 * (float(width) if width else getattr(config, algorithm.hand_set_box)[0])
+    side = 2 * (width if width is not None else getattr(config, algorithm.hand_set_box)[0])
     box = f"{side:g} m box" if len(DOMAINS[config.env].goal_qpos) == 1 else f"{side:g}x{side:g} m"
     return f"{algorithm.name.upper()} {box}"
 
@@ -266,7 +273,7 @@ def chart_labels(presets: list[str]) -> list[str]:
         group = [i for i, other in enumerate(labels) if other == label]
         if len(group) < 2:
             continue
-        configs = [dataclasses.asdict(all_presets()[re.sub(r"-w[0-9.]+$", "", presets[i])][1]) for i in group]
+        configs = [dataclasses.asdict(preset_and_box(presets[i])[0]) for i in group]
         differing = [field for field in configs[0] if any(c[field] != configs[0][field] for c in configs)][:2]
         for i, config in zip(group, configs):
             told = ", ".join(f"{field} {_plain(config[field])}" for field in differing)
@@ -290,7 +297,7 @@ def curve_of(row: dict) -> tuple[np.ndarray, np.ndarray] | None:
 def chart_colours(presets: list[str]) -> list[str]:
     """Each row name's colour: its method's (see ``colour_of``), in shades where one method has
     several variants (GCRL's boxes), so a variant never takes another method's colour."""
-    methods = [method_label(all_presets()[re.sub(r"-w[0-9.]+$", "", p)][1]) for p in presets]
+    methods = [method_label(preset_and_box(p)[0]) for p in presets]
     method_colours: dict[str, str] = {}
     for method in methods:
         method_colours.setdefault(method, colour_of(method, list(method_colours.values())))

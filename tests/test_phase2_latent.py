@@ -60,6 +60,7 @@ def test_a_reset_ends_a_flat_phase_2_episode_and_is_counted(metra_phase2):
     broken = state.replace(skill_actor=jax.tree.map(lambda x: jnp.full_like(x, jnp.nan), state.skill_actor))
     _, totals = jax.jit(trainer._collect)(broken, jnp.float32(0.0), jnp.bool_(False), jax.random.key(1))
     assert int(totals.cut_short) == trainer.cfg.num_envs and int(totals.reached) == 0
+    assert int(totals.env_steps) == trainer.cfg.num_envs  # each episode ended at its first step
     keeping = dataclasses.replace(trainer, cfg=dataclasses.replace(trainer.cfg, learn_from_resets=True))
     kept = keeping.init(skills_state).replace(skill_actor=broken.skill_actor)
     new, totals = jax.jit(keeping._collect)(kept, jnp.float32(0.0), jnp.bool_(True), jax.random.key(1))
@@ -67,7 +68,6 @@ def test_a_reset_ends_a_flat_phase_2_episode_and_is_counted(metra_phase2):
     assert len(rows.cut) == trainer.cfg.num_envs and rows.cut.all() and not rows.reached.any()
     np.testing.assert_allclose(rows.next_obs, np.broadcast_to(trainer.phase1.initial_obs, rows.next_obs.shape),
                                atol=1e-6)  # scored at the state before the reset
-    assert int(totals.env_steps) == trainer.cfg.num_envs  # each episode ended at its first step
 
 
 def test_flat_phase2_trains_resumes_bitwise_and_eval_reports_it(tmp_path):

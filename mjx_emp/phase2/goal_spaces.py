@@ -372,13 +372,13 @@ class Phase2Trainer(Phase2Loop):
         def absorb(kept, transitions, episodes, stats):
             replay, running, totals = kept
             top, bottom = transitions[k], transitions[0]
-            rows, kept = goal_transitions(top), top.valid
+            rows, stored = goal_transitions(top), top.valid
             if self.cfg.learn_from_resets:  # the attempt a reset ended, at its last state before the reset
                 cut = episodes.cut
                 rows = rows.replace(next_obs=jnp.where(cut[..., None], episodes.final_obs, rows.next_obs),
                                     reached=rows.reached & ~cut, cut=cut)
-                kept = kept | cut
-            replay = replay_insert(replay, flatten_rows(rows), flatten_rows(kept) & store)
+                stored = stored | cut
+            replay = replay_insert(replay, flatten_rows(rows), flatten_rows(stored) & store)
             distance = jnp.linalg.norm(self.env.goal_of_obs(bottom.next_obs) - top.goal, axis=-1)
             running, per_step = running_min_distance(distance, bottom.valid, top.final, running)
             counted = episodes.ended & (episodes.index == 0)
