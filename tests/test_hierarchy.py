@@ -246,6 +246,10 @@ def test_nan_in_one_env_invalidates_its_step_and_restarts_it():
     assert int(new_state.env.nan_resets[2]) == 1
     assert int(stats.useful_steps) == 4 * 10 - 1
     assert not bool(t0.valid[0, 2]) and bool(t0.final[0, 2]) and bool(t1.final[0, 2])
+    # Both levels' actions the reset ended are handed back as cut, unreached, ending where the step began.
+    assert bool(t0.cut[0, 2]) and bool(t1.cut[0, 2]) and not (t0.reached[0, 2] or t1.reached[0, 2])
+    assert int(np.asarray(t0.cut).sum()) == 1 and not (np.asarray(t0.cut) & np.asarray(t0.valid)).any()
+    np.testing.assert_array_equal(t0.next_obs[0, 2], episodes.final_obs[0, 2])
     assert bool(t0.valid[1, 2]), "the restarted env continues with a live episode"
     assert np.isfinite(np.asarray(new_state.env.data.qpos)).all()
 

@@ -454,6 +454,54 @@ def test_n_step_target_equals_its_closed_form():
         np.testing.assert_allclose(got, want, rtol=1e-6)
 
 
+def test_n_step_target_ends_at_a_row_a_reset_cut():
+    env = make_env("point_mass")
+    sigma, gamma = 0.5, 0.9
+    goal = jnp.array([9.0, 0.0])
+    # One episode: 0 -> 1 -> 2, and a reset during the third action (its row scored at x=2, where it began).
+    rows = _one_episode_rows(env, [[0, 0], [1, 0], [2, 0], [2, 0]], goal, [1, 2, 3])
+    rows = rows.replace(cut=jnp.array([False, False, True]))
+    r = [float(gce.goal_conditioned_reward(goal, jnp.array([x, 0.0]), sigma)) for x in (1, 2, 2)]
+    slots = jnp.array([0, 1, 2])
+    batch = jax.tree.map(lambda x: x[slots], rows)
+    backup = n_step_backup(rows, slots, batch, env, sigma, gamma, eps=0.3, steps=3)
+    fall = r[2] / (1 - gamma)  # the robot stays where it fell
+    np.testing.assert_allclose(backup.reward, [r[0] + gamma * r[1] + gamma ** 2 * fall, r[1] + gamma * fall, fall],
+                               rtol=1e-6)
+    np.testing.assert_allclose(backup.discount, [0.0, 0.0, 0.0])
+    one = n_step_backup(rows, slots, batch, env, sigma, gamma, eps=0.3, steps=1)
+    np.testing.assert_allclose(one.reward, [r[0], r[1], fall], rtol=1e-6)
+    np.testing.assert_allclose(one.discount, [gamma, gamma, 0.0], rtol=1e-6)
+
+
+def test_phase_one_keeps_what_a_reset_cut_short_only_when_asked():
+    """With ``learn_from_resets`` a reset's actions are stored as cut, unreached rows at the state
+    before the reset and its episodes reach the goal-space replay; the update on them is finite.
+    Without it neither is stored."""
+    for learn in (False, True):
+        agent = HEAgent(dataclasses.replace(TINY, learn_from_resets=learn))
+        state = agent.init()
+        poisoned = state.replace(policies=tuple(
+            p.replace(actor=jax.tree.map(lambda x: jnp.full_like(x, jnp.nan), p.actor)) for p in state.policies))
+        collect = jax.jit(agent._collect)
+        gc, _ = collect(poisoned, jnp.int32(0), jnp.int32(MODE_GC), jax.random.key(1))
+        gs, _ = collect(poisoned, jnp.int32(0), jnp.int32(MODE_GS), jax.random.key(2))
+        size, gs_size = int(gc.replay[0].size), int(gs.goal_space_replay[0].size)
+        if not learn:
+            assert size == 0 and gs_size == 0 and gc.replay[0].data.cut is None
+            continue
+        assert size >= TINY.num_envs and gs_size >= TINY.num_envs
+        rows = jax.tree.map(lambda x: np.asarray(x[:size]), gc.replay[0].data)
+        assert rows.cut.all() and not rows.reached.any()
+        np.testing.assert_allclose(rows.next_obs, rows.obs, atol=1e-6)  # every step reset: each ends where it began
+        assert (rows.successor == gc.replay[0].capacity).all()  # a cut row ends its episode
+        # The poisoned actor's actions were NaN; the rows train as a finite policy's would.
+        replay = gc.replay[0].replace(data=gc.replay[0].data.replace(action=jnp.zeros_like(gc.replay[0].data.action)))
+        _, losses = jax.jit(agent.gc_update(0))((state.policies, state.goal_spaces), (replay,) + gc.replay[1:],
+                                                gc.goal_space_replay, jax.random.key(3))
+        assert np.isfinite(np.asarray(losses)).all()
+
+
 def test_layer_norm_only_where_configured():
     def layer_norms(params) -> int:
         return sum("LayerNorm" in "/".join(str(k) for k in path) for path, _ in jax.tree_util.tree_leaves_with_path(params))

@@ -87,14 +87,17 @@ def n_step_backup(rows: GoalTransition, slots: jax.Array, batch: GoalTransition,
     achieved = env.goal_of_obs(next_obs)
     reached = jnp.linalg.norm(achieved - batch.goal, axis=-1) < eps
     reached = reached.at[0].set(batch.reached)
-    reward = gce.goal_conditioned_reward(batch.goal, achieved, sigma)
-    total, discount, boot = jnp.zeros_like(reward[0]), jnp.ones_like(reward[0]), batch.next_obs
+    step = Backup(reward=gce.goal_conditioned_reward(batch.goal, achieved, sigma),
+                  discount=gce.goal_conditioned_discount(reached, gamma), next_obs=next_obs)
+    if rows.cut is not None:  # a reset ends the walk at the row it cut (the episode's last)
+        step = cut_backup(step, rows.cut[walk], gamma)
+    total, discount, boot = jnp.zeros_like(step.reward[0]), jnp.ones_like(step.reward[0]), batch.next_obs
     going = jnp.ones_like(exists[0])
     for j in range(steps):
         take = going & exists[j]
-        total = total + jnp.where(take, discount * reward[j], 0.0)
+        total = total + jnp.where(take, discount * step.reward[j], 0.0)
         boot = jnp.where(take[:, None], next_obs[j], boot)
-        discount = jnp.where(take, discount * gce.goal_conditioned_discount(reached[j], gamma), discount)
+        discount = jnp.where(take, discount * step.discount[j], discount)
         going = take & ~reached[j]
     return Backup(reward=total, discount=discount, next_obs=boot)
 
@@ -193,8 +196,15 @@ def relabel_goals(batch: GoalTransition, key: jax.Array, fraction: float, env: E
     return batch.replace(goal=goal, reached=jnp.where(swap, reached, batch.reached))
 
 
-def goal_transitions(t: Transition, successor: jax.Array | None = None) -> GoalTransition:
+def goal_transitions(t: Transition, successor: jax.Array | None = None, keep_cut: bool = False) -> GoalTransition:
     """The stored form of a level's transitions (reward and discount are derived on sampling);
-    ``successor`` gives rows episode links (see :class:`GoalTransition`)."""
+    ``successor`` gives rows episode links and ``keep_cut`` their reset flags, for a replay
+    that keeps the rows a reset ended (see :class:`GoalTransition`)."""
     return GoalTransition(obs=t.obs, goal=t.goal, action=t.action, next_obs=t.next_obs, reached=t.reached,
-                          successor=successor)
+                          successor=successor, cut=t.cut if keep_cut else None)
+
+
+def stored_rows(t: Transition, keep_cut: bool) -> jax.Array:
+    """Which of a level's transitions a replay stores: the valid ones, and with ``keep_cut``
+    also those a reset ended."""
+    return t.valid | t.cut if keep_cut else t.valid

@@ -43,6 +43,7 @@ from mjx_emp.learners.ddpg import (
     ddpg_step,
     goal_transitions,
     one_step_backup,
+    stored_rows,
 )
 from mjx_emp.metrics import PHASE2_DIAGNOSTICS, epoch_header, running_min_distance
 from mjx_emp.nets import (
@@ -372,12 +373,8 @@ class Phase2Trainer(Phase2Loop):
         def absorb(kept, transitions, episodes, stats):
             replay, running, totals = kept
             top, bottom = transitions[k], transitions[0]
-            rows, stored = goal_transitions(top), top.valid
-            if self.cfg.learn_from_resets:  # the attempt a reset ended, at its last state before the reset
-                cut = episodes.cut
-                rows = rows.replace(next_obs=jnp.where(cut[..., None], episodes.final_obs, rows.next_obs),
-                                    reached=rows.reached & ~cut, cut=cut)
-                stored = stored | cut
+            keep_cut = self.cfg.learn_from_resets  # the attempt a reset ended, at its last state before the reset
+            rows, stored = goal_transitions(top, keep_cut=keep_cut), stored_rows(top, keep_cut)
             replay = replay_insert(replay, flatten_rows(rows), flatten_rows(stored) & store)
             distance = jnp.linalg.norm(self.env.goal_of_obs(bottom.next_obs) - top.goal, axis=-1)
             running, per_step = running_min_distance(distance, bottom.valid, top.final, running)

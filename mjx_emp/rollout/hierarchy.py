@@ -136,7 +136,10 @@ class Transition:
     """One level's experience, stacked as [T, B, ...]; rows with ``valid`` False are padding.
 
     ``reached``: h(next_obs) within eps of ``goal``. ``final``: this action ended the
-    level's pursuit of ``goal`` (reached, out of actions, or a physics reset).
+    level's pursuit of ``goal`` (reached, out of actions, or a physics reset). ``cut``: a
+    reset (physics broke or the Ant flipped) ended this action; such a row is not valid,
+    its ``next_obs`` is the last observation before the resetting step and it is never
+    reached. A row is at most one of ``valid`` and ``cut``.
     """
 
     obs: jax.Array
@@ -146,6 +149,7 @@ class Transition:
     reached: jax.Array
     final: jax.Array
     valid: jax.Array
+    cut: jax.Array
 
 
 @struct.dataclass
@@ -383,6 +387,7 @@ def _scan_step(hierarchy, params, start, start_params, state: RolloutState, _):
     broke = env_state.resets > state.env.resets
     next_obs = jax.vmap(env.observe)(env_state)
     pos = jax.vmap(env.goal_of)(env_state)
+    last_obs = jnp.where(broke[:, None], obs, next_obs)  # a reset's step ends where it began
 
     # 2. Bottom-up: levels whose action completed count it and check their goal.
     transitions, finished, reached_by_level = [], [], []
@@ -397,8 +402,8 @@ def _scan_step(hierarchy, params, start, start_params, state: RolloutState, _):
         done = completed & (reached | (count >= hierarchy.actions_per_episode(i)) | broke)
         transitions.append(
             Transition(
-                obs=issued_obs[i], goal=goals[i], action=issued_action[i], next_obs=next_obs,
-                reached=reached, final=done, valid=completed & ~broke,
+                obs=issued_obs[i], goal=goals[i], action=issued_action[i], next_obs=last_obs,
+                reached=reached & ~broke, final=done, valid=completed & ~broke, cut=completed & broke,
             )
         )
         counts[i] = jnp.where(done, 0, count)
@@ -408,7 +413,7 @@ def _scan_step(hierarchy, params, start, start_params, state: RolloutState, _):
     episode_over = jnp.stack(finished)[root]
     episode_end = EpisodeEnd(
         info=state.episode,
-        final_obs=jnp.where(broke[:, None], obs, next_obs),
+        final_obs=last_obs,
         reached=jnp.stack(reached_by_level)[root] & ~broke,
         index=state.episodes_done,
         valid=episode_over & ~broke,

@@ -39,12 +39,15 @@ from mjx_emp.learners.ddpg import (
     Backup,
     DDPGLearner,
     GoalTransition,
+    cut_backup,
     ddpg_losses,
     ddpg_step,
     goal_transitions,
     hindsight_goals,
     n_step_backup,
+    one_step_backup,
     relabel_goals,
+    stored_rows,
 )
 from mjx_emp.learners.goal_space import GoalSpaceLearner, GoalSpaceSample, svg_losses
 from mjx_emp.metrics import epoch_header
@@ -248,7 +251,8 @@ class HEAgent:
             gs_actor = self.nets.gs_actor_net(level).init(keys[2], env.features(obs))
             gs_critic = self.nets.critic_net.init(keys[3], jnp.concatenate([env.features(obs), goal, gs_action]))
             goal_spaces.append(GoalSpaceLearner(gs_actor, gs_critic, opt["gs_actor"].init(gs_actor), opt["gs_critic"].init(gs_critic)))
-            row = GoalTransition(obs, goal, action, obs, jnp.zeros((), bool), successor=jnp.zeros((), jnp.int32))
+            row = GoalTransition(obs, goal, action, obs, jnp.zeros((), bool), successor=jnp.zeros((), jnp.int32),
+                                 cut=jnp.zeros((), bool) if cfg.learn_from_resets else None)
             replay.append(replay_init(row, cfg.replay_capacity))
             goal_space_replay.append(replay_init(GoalSpaceSample(obs, goal, gs_action, jnp.zeros(())), cfg.gs_replay_capacity))
             start_buffer = replay_init(obs, cfg.start_capacity)
@@ -328,7 +332,8 @@ class HEAgent:
         """Run the agent rooted at ``root`` and file what it saw into the right buffers.
 
         GC: every valid root transition goes to the level's replay. GS: every finished root
-        episode goes to the goal-space replay. With ``fresh_replay`` the buffer an item
+        episode goes to the goal-space replay. With ``learn_from_resets`` both also keep
+        what a reset cut short. With ``fresh_replay`` the buffer an item
         fills is emptied first (the paper's fresh D per call). EVAL: nothing is stored
         (success and distance are read from each environment's first episode in every
         mode; an episode a reset cut short, a flipped Ant, counts as a failure scored at
@@ -347,14 +352,16 @@ class HEAgent:
         def absorb(kept, transitions, episodes, stats):
             (replay, goal_space_replay, starts, last), totals = kept
             replay, last = zip(*(
-                self._store_linked(replay[i], last[i], transitions[i], (root == i) & (mode == MODE_GC))
+                self._store_linked(replay[i], last[i], transitions[i], (root == i) & (mode == MODE_GC),
+                                   cfg.learn_from_resets)
                 for i in range(cfg.k)
             ))
             transitions = flatten_rows(transitions)
             episodes = flatten_rows(episodes)
             first_episode = episodes.ended & (episodes.index == 0)
+            scored = episodes.ended if cfg.learn_from_resets else episodes.valid
             goal_space_replay = tuple(
-                replay_insert(goal_space_replay[i], self._goal_space_sample(i, episodes), episodes.valid & (root == i) & (mode == MODE_GS))
+                replay_insert(goal_space_replay[i], self._goal_space_sample(i, episodes), scored & (root == i) & (mode == MODE_GS))
                 for i in range(cfg.k)
             )
             starts = tuple(
@@ -389,14 +396,16 @@ class HEAgent:
         return state, totals
 
     @staticmethod
-    def _store_linked(buffer: ReplayBuffer, last: jax.Array, transitions: Transition, store: jax.Array):
-        """Insert a chunk's [T, B] transitions where valid and ``store``, linking each to the
-        next row of its episode (for hindsight goals and n-step targets); returns the
-        buffer and each environment's latest stored row of a running episode."""
-        valid = transitions.valid & store
+    def _store_linked(buffer: ReplayBuffer, last: jax.Array, transitions: Transition, store: jax.Array,
+                      keep_cut: bool):
+        """Insert a chunk's [T, B] transitions where valid (or, with ``keep_cut``, a reset ended
+        them) and ``store``, linking each to the next row of its episode (for hindsight goals
+        and n-step targets); returns the buffer and each environment's latest stored row of a
+        running episode."""
+        valid = stored_rows(transitions, keep_cut) & store
         slots, count = insertion_slots(buffer, valid.reshape(-1))
         none = jnp.full(valid.shape, buffer.capacity, jnp.int32)
-        rows = flatten_rows(goal_transitions(transitions, successor=none))
+        rows = flatten_rows(goal_transitions(transitions, successor=none, keep_cut=keep_cut))
         buffer = replay_write(buffer, rows, slots, count)
         successor, last = link_episode_rows(buffer.data.successor, slots.reshape(valid.shape), valid,
                                             transitions.final & store, last)
@@ -448,6 +457,9 @@ class HEAgent:
                 if cfg.n_step > 1:
                     backup = n_step_backup(rows, slots, batch, self.env, cfg.sigma_gc[level], cfg.gamma,
                                            cfg.eps[level], cfg.n_step)
+                elif batch.cut is not None:  # learn_from_resets: an action a reset cut short ends its task
+                    backup = cut_backup(one_step_backup(batch, self.env, cfg.sigma_gc[level], cfg.gamma),
+                                        batch.cut, cfg.gamma)
                 losses = self.gc_losses(level, learner, box, batch, backup)
                 return ddpg_step(learner, losses, opt["actor"], opt["critic"], cfg.tau)
 

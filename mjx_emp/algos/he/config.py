@@ -117,6 +117,12 @@ class HEConfig:
     False is the paper's plain MLP."""
     actor_layer_norm: bool = False
     """LayerNorm before every hidden ReLU of the goal-conditioned actors."""
+    learn_from_resets: bool = False
+    """Keep what a reset (a flipped Ant) ended: the goal-conditioned levels store the actions it
+    cut short as final rows scored as if the robot stayed where it fell (r / (1 - gamma),
+    ``learners.ddpg.cut_backup``), and the goal spaces learn from the episodes it cut short,
+    scored at their last state before the reset. False drops both, as no transition of the task
+    ends in a reset (the paper does not say what its Brax Ant did on its back)."""
     critics: int = 1
     """Goal-conditioned critics per level. 1 is the paper's DDPG; 2 is TD3's clipped
     double-Q (Fujimoto et al. 2018): two critics, bootstrapped targets from the smaller

@@ -83,6 +83,9 @@ ANT_FIELD_CPU_K2_4ITER_LN = dataclasses.replace(ANT_FIELD_CPU_K2_4ITER, critic_l
 # The same with half the goal-space posterior's sigma_gs: the box settles about sqrt(2) sigma_gs past the
 # skills' reach, so a smaller sigma_gs trades box size for the skills' success (docs/presets.md#a-tighter-box).
 ANT_FIELD_CPU_K1_4ITER_LN_GS025 = dataclasses.replace(ANT_FIELD_CPU_K1_4ITER_LN, sigma_gs=(0.25,))
+# The same learner trained on what its flips cut short: the goal-conditioned level scores a flip as staying
+# where the Ant fell, the goal space scores the episode at its last state (docs/presets.md#learning-from-flips).
+ANT_FIELD_CPU_K1_4ITER_LN_RESETS = dataclasses.replace(ANT_FIELD_CPU_K1_4ITER_LN, learn_from_resets=True)
 
 # The cages at CPU scale: the best CPU learner of each robot's field, in its Table-1 cage
 # (docs/presets.md#the-cages-on-a-cpu).
@@ -109,6 +112,8 @@ PRESETS: dict[str, tuple[str, HEConfig]] = {
                                   ANT_FIELD_CPU_K2_4ITER_LN),
     "ant-field-cpu-k1-4iter-ln-gs0.25": ("CPU: ant-field-cpu-k1-4iter-ln with sigma_gs 0.25 instead of 0.5: a box "
                                          "that settles nearer the skills' reach", ANT_FIELD_CPU_K1_4ITER_LN_GS025),
+    "ant-field-cpu-k1-4iter-ln-resets": ("CPU: ant-field-cpu-k1-4iter-ln learning from what flips cut short "
+                                         "(learn_from_resets)", ANT_FIELD_CPU_K1_4ITER_LN_RESETS),
     "half-cheetah-cpu-k1-4iter": ("CPU: half-cheetah-cpu-k1 with 4 solver iterations (accurate contacts)",
                                   HALF_CHEETAH_CPU_K1_4ITER),
     "ant-field-cpu-k1-her-ln": ("CPU: ant-field-cpu-k1 with hindsight goals and a LayerNorm critic, 120 epochs",
