@@ -4,7 +4,8 @@ A hand-set GCRL box that is too large shows as a learner that rarely reaches its
 one too small as one that always does but covers little. For every row of the ``--rows``
 files whose run's metrics carry goal-space levels, reads RUN_DIR/metrics.jsonl and writes the
 top level's box (volume, half-widths) at the run's last epoch and its greedy success on that
-epoch's goals averaged over the last ``--last`` epochs (``num_envs`` goals each).
+epoch's goals averaged over the last ``--last`` epochs (``num_envs`` goals each). Rows already
+in ``--out`` whose runs are not on disk are kept, so new runs can be added to one file.
 ``python experiments/box_success.py --rows benchmarks/results/equal_budget_ant_cpu.json
 --out benchmarks/results/box_success_ant_cpu.json``.
 """
@@ -50,7 +51,8 @@ def box_at_end(metrics: list[dict], last: int) -> dict | None:
 
 
 def main(args: Args) -> None:
-    out_rows = []
+    out = Path(args.out)
+    out_rows = json.loads(out.read_text())["rows"] if out.exists() else []  # runs no longer on disk keep their rows
     for path in args.rows:
         for row in json.loads(Path(path).read_text())["rows"]:
             run_dir = Path(row["run_dir"])
@@ -60,9 +62,9 @@ def main(args: Args) -> None:
             box = box_at_end(read_metrics(run_dir), args.last)
             if box is None:
                 continue
+            out_rows = [r for r in out_rows if (r["preset"], r["seed"]) != (row["preset"], row["seed"])]
             out_rows.append({"preset": row["preset"], "seed": row["seed"], "run_dir": str(run_dir), **box})
             print(json.dumps(out_rows[-1]), flush=True)
-    out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     store.write_atomically(out, json.dumps({"backend": jax.default_backend(), "last": args.last, "rows": out_rows},
                                            indent=1))

@@ -24,3 +24,22 @@ def test_a_flat_learner_has_no_box_and_last_must_be_positive():
     assert box_at_end([{"epoch": 1, "env_steps": 10.0, "skill_loss": 0.1}], 20) is None
     with pytest.raises(SystemExit, match="last: must be >= 1; got 0"):
         box_at_end([_line(1, 1.0, 1.0)], 0)
+
+
+def test_new_runs_join_the_rows_of_runs_no_longer_on_disk(tmp_path):
+    import json
+
+    from box_success import Args, main
+
+    run = tmp_path / "run-s1"
+    run.mkdir()
+    (run / "metrics.jsonl").write_text("".join(json.dumps(_line(e, 1.0, 4.0)) + "\n" for e in range(1, 4)))
+    rows = tmp_path / "rows.json"
+    rows.write_text(json.dumps({"rows": [{"preset": "p", "seed": 1, "run_dir": str(run)},
+                                         {"preset": "p", "seed": 0, "run_dir": str(tmp_path / "gone")}]}))
+    out = tmp_path / "box.json"
+    out.write_text(json.dumps({"rows": [{"preset": "p", "seed": 0, "volume": 9.0},
+                                        {"preset": "p", "seed": 1, "volume": 1.0}]}))
+    main(Args(rows=(str(rows),), out=str(out)))
+    kept = {r["seed"]: r["volume"] for r in json.loads(out.read_text())["rows"]}
+    assert kept == {0: 9.0, 1: 4.0}  # seed 0's run is gone and keeps its row; seed 1 is recounted
