@@ -60,9 +60,12 @@ class Backup:
 
 
 def one_step_backup(batch: GoalTransition, env: Env, sigma: float, gamma: float) -> Backup:
-    """The paper's one-step target: r = log N(goal; h(s'), sigma), discount gamma until reached."""
+    """The paper's one-step target: r = log N(goal; h(s'), sigma), discount gamma until reached;
+    rows a reset ended, in a replay that keeps them, are scored by :func:`cut_backup`."""
     reward = gce.goal_conditioned_reward(batch.goal, env.goal_of_obs(batch.next_obs), sigma)
-    return Backup(reward=reward, discount=gce.goal_conditioned_discount(batch.reached, gamma), next_obs=batch.next_obs)
+    backup = Backup(reward=reward, discount=gce.goal_conditioned_discount(batch.reached, gamma),
+                    next_obs=batch.next_obs)
+    return backup if batch.cut is None else cut_backup(backup, batch.cut, gamma)
 
 
 def cut_backup(backup: Backup, cut: jax.Array, gamma: float) -> Backup:

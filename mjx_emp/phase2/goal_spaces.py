@@ -38,11 +38,9 @@ from mjx_emp.learners.common import all_finite
 from mjx_emp.learners.ddpg import (
     DDPGLearner,
     GoalTransition,
-    cut_backup,
     ddpg_losses,
     ddpg_step,
     goal_transitions,
-    one_step_backup,
     stored_rows,
 )
 from mjx_emp.metrics import PHASE2_DIAGNOSTICS, epoch_header, running_min_distance
@@ -167,10 +165,7 @@ class Phase2Loop:
 
         def step(learner: DDPGLearner, step_key):
             batch = replay_sample(state.replay, step_key, cfg.batch_size)
-            backup = one_step_backup(batch, self.env, cfg.sigma, cfg.gamma)
-            if batch.cut is not None:  # learn_from_resets: attempts a reset ended are kept, as terminal rows
-                backup = cut_backup(backup, batch.cut, cfg.gamma)
-            losses = ddpg_losses(act, self.q_value, learner, batch, self.env, cfg.sigma, cfg.gamma, backup)
+            losses = ddpg_losses(act, self.q_value, learner, batch, self.env, cfg.sigma, cfg.gamma)
             return ddpg_step(learner, losses, actor_tx, critic_tx, cfg.tau)
 
         learner, losses = jax.lax.scan(step, state.learner, jax.random.split(key, cfg.grad_steps))

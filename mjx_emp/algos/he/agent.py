@@ -39,13 +39,11 @@ from mjx_emp.learners.ddpg import (
     Backup,
     DDPGLearner,
     GoalTransition,
-    cut_backup,
     ddpg_losses,
     ddpg_step,
     goal_transitions,
     hindsight_goals,
     n_step_backup,
-    one_step_backup,
     relabel_goals,
     stored_rows,
 )
@@ -457,9 +455,6 @@ class HEAgent:
                 if cfg.n_step > 1:
                     backup = n_step_backup(rows, slots, batch, self.env, cfg.sigma_gc[level], cfg.gamma,
                                            cfg.eps[level], cfg.n_step)
-                elif batch.cut is not None:  # learn_from_resets: an action a reset cut short ends its task
-                    backup = cut_backup(one_step_backup(batch, self.env, cfg.sigma_gc[level], cfg.gamma),
-                                        batch.cut, cfg.gamma)
                 losses = self.gc_losses(level, learner, box, batch, backup)
                 return ddpg_step(learner, losses, opt["actor"], opt["critic"], cfg.tau)
 
