@@ -18,6 +18,7 @@ from mjx_emp.algos.he.agent import (
     MODE_GS,
     MODE_STARTS,
     TRAIN_EPOCH_TRACE,
+    EpisodeInfo,
     HEAgent,
     epoch_schedule,
     start_subset,
@@ -38,6 +39,7 @@ from mjx_emp.learners.ddpg import (
 from mjx_emp.learners.goal_space import GoalSpaceSample
 from mjx_emp.nets import greedy_batch
 from mjx_emp.replay import replay_init, replay_insert
+from mjx_emp.rollout.hierarchy import EpisodeEnd
 from mjx_emp.tracing import traces
 
 
@@ -253,6 +255,8 @@ def test_restore_round_trips_observations():
         (dict(gamma=1.0), "gamma"),
         (dict(num_envs=0), "num_envs"),
         (dict(heading_frame=True), "heading_frame: 'point_mass' has no free torso"),
+        (dict(learn_from_resets=True, reset_outcome="first"), "reset_outcome: 'first' is unknown"),
+        (dict(reset_outcome="start"), "reset_outcome: 'start' needs learn_from_resets"),
     ],
 )
 def test_bad_train_config_names_the_field(change, field):
@@ -500,6 +504,27 @@ def test_phase_one_keeps_what_a_reset_cut_short_only_when_asked():
         _, losses = jax.jit(agent.gc_update(0))((state.policies, state.goal_spaces), (replay,) + gc.replay[1:],
                                                 gc.goal_space_replay, jax.random.key(3))
         assert np.isfinite(np.asarray(losses)).all()
+
+
+def test_reset_outcome_scores_a_fallen_skill_as_one_that_never_moved_only_when_asked():
+    """The goal spaces score a cut episode at its last state ("last") or at its start ("start");
+    episodes that ended normally score the same either way."""
+    agent = HEAgent(dataclasses.replace(TINY, learn_from_resets=True))
+    env, rng = agent.env, np.random.default_rng(0)
+    obs = jnp.asarray(rng.normal(size=(4, env.obs_size)), jnp.float32)
+    final = obs + 1.5  # every episode moved away from its start
+    cut = jnp.array([True, False, True, False])
+    episodes = EpisodeEnd(info=EpisodeInfo(obs=obs, noise=jnp.zeros((4, env.goal_size)),
+                                           action=jnp.zeros((4, 2 * env.goal_size))),
+                          final_obs=final, reached=jnp.zeros(4, bool), index=jnp.zeros(4, jnp.int32),
+                          valid=~cut, cut=cut)
+    last = np.asarray(agent._goal_space_sample(0, episodes).reward)
+    start = np.asarray(HEAgent(dataclasses.replace(TINY, learn_from_resets=True, reset_outcome="start"))
+                       ._goal_space_sample(0, episodes).reward)
+    never_moved = np.asarray(agent._goal_space_sample(0, episodes.replace(final_obs=obs)).reward)
+    np.testing.assert_allclose(start[~np.asarray(cut)], last[~np.asarray(cut)])
+    np.testing.assert_allclose(start[np.asarray(cut)], never_moved[np.asarray(cut)])
+    assert not np.allclose(start[np.asarray(cut)], last[np.asarray(cut)])
 
 
 def test_layer_norm_only_where_configured():

@@ -413,8 +413,11 @@ class HEAgent:
         """Goal-space samples from finished episodes, rewarded with the level's sigma_gs."""
         info = episodes.info
         z = gce.sample_goal(info.noise, info.action)
+        final_obs = episodes.final_obs
+        if self.cfg.reset_outcome == "start":  # a skill that fell over is scored as one that never moved
+            final_obs = jnp.where(episodes.cut[..., None], info.obs, final_obs)
         reward = gce.goal_space_reward(
-            self.env.goal_of_obs(info.obs), z, self.env.goal_of_obs(episodes.final_obs),
+            self.env.goal_of_obs(info.obs), z, self.env.goal_of_obs(final_obs),
             info.action, self.cfg.sigma_gs[level],
         )
         return GoalSpaceSample(obs=info.obs, noise=info.noise, action=info.action, reward=reward)

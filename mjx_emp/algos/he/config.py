@@ -11,6 +11,9 @@ from mjx_emp.checks import check_capacity, check_counts, check_finite, check_lea
 from mjx_emp.envs.registry import DOMAINS, check_physics
 from mjx_emp.errors import ConfigError
 
+RESET_OUTCOMES = ("last", "start")
+"""Where the goal spaces may score an episode a reset cut short (``HEConfig.reset_outcome``)."""
+
 
 @dataclasses.dataclass(frozen=True)
 class HEConfig:
@@ -123,6 +126,10 @@ class HEConfig:
     ``learners.ddpg.cut_backup``), and the goal spaces learn from the episodes it cut short,
     scored at their last state before the reset. False drops both, as no transition of the task
     ends in a reset (the paper does not say what its Brax Ant did on its back)."""
+    reset_outcome: str = "last"
+    """With ``learn_from_resets``, where the goal spaces score an episode a reset cut short:
+    "last" at its last state before the reset; "start" as if the skill never left its start
+    state, so a box whose skills fall over earns what a box of skills that never move earns."""
     critics: int = 1
     """Goal-conditioned critics per level. 1 is the paper's DDPG; 2 is TD3's clipped
     double-Q (Fujimoto et al. 2018): two critics, bootstrapped targets from the smaller
@@ -190,6 +197,11 @@ def check_train_config(cfg: HEConfig, positive: tuple[str, ...] = _POSITIVE) -> 
         raise ConfigError(f"relabel: a fraction in [0, 1]; got {cfg.relabel}")
     if not 0 <= cfg.her <= 1:
         raise ConfigError(f"her: a fraction in [0, 1]; got {cfg.her}")
+    if cfg.reset_outcome not in RESET_OUTCOMES:
+        raise ConfigError(f"reset_outcome: {cfg.reset_outcome!r} is unknown; allowed values: {list(RESET_OUTCOMES)}")
+    if cfg.reset_outcome != "last" and not cfg.learn_from_resets:
+        raise ConfigError(f"reset_outcome: {cfg.reset_outcome!r} needs learn_from_resets=True (without it the "
+                          "episodes a reset cut short are not scored)")
     check_finite(cfg)
     # One step of every environment; a collection chunk larger than the ring keeps its newest rows.
     check_capacity(cfg, "replay_capacity", {"a minibatch (batch_size)": cfg.batch_size,

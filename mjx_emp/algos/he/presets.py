@@ -86,6 +86,9 @@ ANT_FIELD_CPU_K1_4ITER_LN_GS025 = dataclasses.replace(ANT_FIELD_CPU_K1_4ITER_LN,
 # The same learner trained on what its flips cut short: the goal-conditioned level scores a flip as staying
 # where the Ant fell, the goal space scores the episode at its last state (docs/presets.md#learning-from-flips).
 ANT_FIELD_CPU_K1_4ITER_LN_RESETS = dataclasses.replace(ANT_FIELD_CPU_K1_4ITER_LN, learn_from_resets=True)
+# The same with the goal space scoring a skill that flipped as one that never left its start, so a box
+# whose far goals flip the Ant earns no more than a box of skills that stay put (docs/presets.md#learning-from-flips).
+ANT_FIELD_CPU_K1_4ITER_LN_RESETS_START = dataclasses.replace(ANT_FIELD_CPU_K1_4ITER_LN_RESETS, reset_outcome="start")
 
 # The cages at CPU scale: the best CPU learner of each robot's field, in its Table-1 cage
 # (docs/presets.md#the-cages-on-a-cpu).
@@ -114,6 +117,9 @@ PRESETS: dict[str, tuple[str, HEConfig]] = {
                                          "that settles nearer the skills' reach", ANT_FIELD_CPU_K1_4ITER_LN_GS025),
     "ant-field-cpu-k1-4iter-ln-resets": ("CPU: ant-field-cpu-k1-4iter-ln learning from what flips cut short "
                                          "(learn_from_resets)", ANT_FIELD_CPU_K1_4ITER_LN_RESETS),
+    "ant-field-cpu-k1-4iter-ln-resets-start": ("CPU: ant-field-cpu-k1-4iter-ln-resets with a flipped skill scored "
+                                               "in the goal space as one that never moved (reset_outcome start)",
+                                               ANT_FIELD_CPU_K1_4ITER_LN_RESETS_START),
     "half-cheetah-cpu-k1-4iter": ("CPU: half-cheetah-cpu-k1 with 4 solver iterations (accurate contacts)",
                                   HALF_CHEETAH_CPU_K1_4ITER),
     "ant-field-cpu-k1-her-ln": ("CPU: ant-field-cpu-k1 with hindsight goals and a LayerNorm critic, 120 epochs",
