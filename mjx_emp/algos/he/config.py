@@ -124,8 +124,9 @@ class HEConfig:
     """Keep what a reset (a flipped Ant) ended: the goal-conditioned levels store the actions it
     cut short as final rows scored as if the robot stayed where it fell (r / (1 - gamma),
     ``learners.ddpg.cut_backup``), and the goal spaces learn from the episodes it cut short,
-    scored at their last state before the reset. False drops both, as no transition of the task
-    ends in a reset (the paper does not say what its Brax Ant did on its back)."""
+    scored where ``reset_outcome`` says (by default their last state before the reset). False
+    drops both, as no transition of the task ends in a reset (the paper does not say what its
+    Brax Ant did on its back)."""
     reset_outcome: str = "last"
     """With ``learn_from_resets``, where the goal spaces score an episode a reset cut short:
     "last" at its last state before the reset; "start" as if the skill never left its start
