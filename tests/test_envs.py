@@ -117,6 +117,25 @@ def test_an_ant_upside_down_is_reset_home_and_counted_and_an_upright_one_is_not(
     assert bool(env.upright(state.data.replace(qpos=tilted)))
 
 
+def test_up_axis_reads_the_tilt_from_an_observation_and_decides_upright():
+    env = make_env("ant_field")
+    obs = env.observe(env.reset_to(jax.random.key(0), jnp.array([1.0, 2.0])))
+    q = env.torso_quat
+
+    def turned(angle, scale=1.0):  # the torso rotated by ``angle`` about x; a quaternion of any length
+        return obs.at[q : q + 4].set(scale * jnp.array([np.cos(angle / 2), np.sin(angle / 2), 0.0, 0.0]))
+
+    angles = np.array([0.0, np.pi / 3, np.pi / 2 - 0.01, np.pi / 2 + 0.01, np.pi])
+    up = [float(env.up_axis_z(turned(a, scale=1.7))) for a in angles]
+    np.testing.assert_allclose(up, np.cos(angles), atol=1e-6)
+    qpos = jnp.stack([turned(a)[: env.mj_model.nq] for a in angles])
+    assert [bool(env.upright(env.template.replace(qpos=x))) for x in qpos] == [True, True, True, False, False]
+    batch = jnp.stack([turned(a) for a in angles])
+    np.testing.assert_allclose(env.up_axis_z(batch), np.cos(angles), atol=1e-6)  # over a batch too
+    cheetah = make_env("half_cheetah_field")
+    np.testing.assert_array_equal(cheetah.up_axis_z(jnp.zeros((3, cheetah.obs_size))), np.ones(3))
+
+
 def test_a_half_cheetah_on_its_back_keeps_running():
     env = make_env("half_cheetah_field")
     state = upside_down(env, env.reset_to(jax.random.key(0), jnp.array([2.0])))

@@ -257,6 +257,8 @@ def test_restore_round_trips_observations():
         (dict(heading_frame=True), "heading_frame: 'point_mass' has no free torso"),
         (dict(learn_from_resets=True, reset_outcome="first"), "reset_outcome: 'first' is unknown"),
         (dict(reset_outcome="start"), "reset_outcome: 'start' needs learn_from_resets"),
+        (dict(tilt_cost=-1.0), "tilt_cost: must be >= 0"),
+        (dict(tilt_cost=1.0), "tilt_cost: 'point_mass' has no free torso to tilt"),
     ],
 )
 def test_bad_train_config_names_the_field(change, field):
@@ -476,6 +478,36 @@ def test_n_step_target_ends_at_a_row_a_reset_cut():
     one = n_step_backup(rows, slots, batch, env, sigma, gamma, eps=0.3, steps=1)
     np.testing.assert_allclose(one.reward, [r[0], r[1], fall], rtol=1e-6)
     np.testing.assert_allclose(one.discount, [gamma, gamma, 0.0], rtol=1e-6)
+
+
+def test_tilt_cost_lowers_level_zero_rewards_by_the_torso_tilt():
+    """One- and n-step targets pay ``tilt_cost`` times 1 - z of the torso's up axis at each
+    next state; at 0 they are the paper's reward, and an upright torso pays nothing."""
+    env = make_env("ant_field")
+    sigma, gamma, cost = 1.0, 0.9, 0.5
+    home = env.observe(env.reset_to(jax.random.key(0), jnp.array([0.0, 0.0])))
+    q = env.torso_quat
+    angles = np.array([0.0, np.pi / 2, np.pi])  # upright, on its side, upside down
+    obs = jnp.stack([home.at[:2].set(jnp.array([float(i), 0.0])).at[q : q + 4].set(
+        jnp.array([np.cos(a / 2), np.sin(a / 2), 0.0, 0.0])) for i, a in enumerate(angles)])
+    goal = jnp.array([5.0, 0.0])
+    rows = GoalTransition(obs=obs[:2], goal=jnp.broadcast_to(goal, (2, 2)), action=jnp.zeros((2, env.action_size)),
+                          next_obs=obs[1:], reached=jnp.zeros(2, bool), successor=jnp.array([1, 2], jnp.int32))
+    plain = np.asarray(one_step_backup(rows, env, sigma, gamma).reward)
+    paid = np.asarray(one_step_backup(rows, env, sigma, gamma, tilt_cost=cost).reward)
+    np.testing.assert_allclose(plain, [float(gce.goal_conditioned_reward(goal, jnp.array([x, 0.0]), sigma))
+                                       for x in (1.0, 2.0)], rtol=1e-6)
+    np.testing.assert_allclose(paid, plain - cost * np.array([1.0, 2.0]), rtol=1e-6)
+    slots = jnp.array([0, 1])
+    walked = n_step_backup(rows, slots, rows, env, sigma, gamma, eps=0.3, steps=2, tilt_cost=cost)
+    np.testing.assert_allclose(walked.reward, [paid[0] + gamma * paid[1], paid[1]], rtol=1e-6)
+    upright = rows.replace(next_obs=jnp.stack([home, home]))
+    np.testing.assert_allclose(one_step_backup(upright, env, sigma, gamma, tilt_cost=cost).reward,
+                               one_step_backup(upright, env, sigma, gamma).reward, rtol=1e-6)
+    # An agent pays the cost at level 0 only, the level whose actions move the joints.
+    agent = HEAgent(dataclasses.replace(TINY, env="ant_field", gamma=gamma, sigma_gc=(sigma, sigma), tilt_cost=cost))
+    np.testing.assert_allclose(agent.gc_backup(0, rows, slots, rows).reward, paid, rtol=1e-6)
+    np.testing.assert_allclose(agent.gc_backup(1, rows, slots, rows).reward, plain, rtol=1e-6)
 
 
 def test_phase_one_keeps_what_a_reset_cut_short_only_when_asked():

@@ -142,10 +142,15 @@ class Env:
 
         Always True for robots without a free torso (point mass, Half Cheetah).
         """
+        return self.up_axis_z(data.qpos) > 0.0
+
+    def up_axis_z(self, obs: jax.Array) -> jax.Array:
+        """World z of the torso's up axis, read from an observation or qpos (its first entries):
+        1 upright, 0 on its side, -1 upside down; 1 for robots without a free torso."""
         if self.torso_quat is None:
-            return jnp.ones((), bool)
-        w, x, y, z = (data.qpos[self.torso_quat + i] for i in range(4))
-        return w * w - x * x - y * y + z * z > 0.0  # z of the rotated up axis, times |q|^2
+            return jnp.ones(jnp.shape(obs)[:-1])
+        w, x, y, z = (obs[..., self.torso_quat + i] for i in range(4))
+        return (w * w - x * x - y * y + z * z) / (w * w + x * x + y * y + z * z)
 
     def step(self, state: EnvState, action: jax.Array) -> EnvState:
         """Apply one primitive action (clipped to [-1, 1]) for ``action_repeat`` physics steps.

@@ -59,10 +59,21 @@ class Backup:
     next_obs: jax.Array
 
 
-def one_step_backup(batch: GoalTransition, env: Env, sigma: float, gamma: float) -> Backup:
-    """The paper's one-step target: r = log N(goal; h(s'), sigma), discount gamma until reached;
-    rows a reset ended, in a replay that keeps them, are scored by :func:`cut_backup`."""
-    reward = gce.goal_conditioned_reward(batch.goal, env.goal_of_obs(batch.next_obs), sigma)
+def step_reward(goal: jax.Array, next_obs: jax.Array, env: Env, sigma: float, tilt_cost: float = 0.0) -> jax.Array:
+    """A goal-conditioned step's reward: the paper's log N(goal; h(s'), sigma), less
+    ``tilt_cost`` times the torso's tilt at s' (1 - z of its up axis: 0 upright, 1 on its side)
+    where a level pays for tilting (an option beyond the paper, off at 0)."""
+    reward = gce.goal_conditioned_reward(goal, env.goal_of_obs(next_obs), sigma)
+    if tilt_cost == 0.0:
+        return reward
+    return reward - tilt_cost * (1.0 - env.up_axis_z(next_obs))
+
+
+def one_step_backup(batch: GoalTransition, env: Env, sigma: float, gamma: float, tilt_cost: float = 0.0) -> Backup:
+    """The paper's one-step target: r = log N(goal; h(s'), sigma) (less a tilt cost, see
+    :func:`step_reward`), discount gamma until reached; rows a reset ended, in a replay that
+    keeps them, are scored by :func:`cut_backup`."""
+    reward = step_reward(batch.goal, batch.next_obs, env, sigma, tilt_cost)
     backup = Backup(reward=reward, discount=gce.goal_conditioned_discount(batch.reached, gamma),
                     next_obs=batch.next_obs)
     return backup if batch.cut is None else cut_backup(backup, batch.cut, gamma)
@@ -76,11 +87,11 @@ def cut_backup(backup: Backup, cut: jax.Array, gamma: float) -> Backup:
 
 
 def n_step_backup(rows: GoalTransition, slots: jax.Array, batch: GoalTransition, env: Env, sigma: float,
-                  gamma: float, eps: float, steps: int) -> Backup:
+                  gamma: float, eps: float, steps: int, tilt_cost: float = 0.0) -> Backup:
     """An n-step target for ``batch`` (the rows at ``slots`` of the stored ``rows``, goals possibly relabelled).
 
     Follows each row's episode for up to ``steps`` stored transitions: sum_j gamma^j r_j,
-    every r_j scored against the batch row's goal, stopping after the step that reaches
+    every r_j scored against the batch row's goal (by :func:`step_reward`), stopping after the step that reaches
     it (then nothing is bootstrapped) or at the episode's last stored row, whose next
     state is bootstrapped from with discount gamma^m. The later steps' actions came from
     older policies; as in most n-step off-policy learners nothing corrects for that.
@@ -90,7 +101,7 @@ def n_step_backup(rows: GoalTransition, slots: jax.Array, batch: GoalTransition,
     achieved = env.goal_of_obs(next_obs)
     reached = jnp.linalg.norm(achieved - batch.goal, axis=-1) < eps
     reached = reached.at[0].set(batch.reached)
-    step = Backup(reward=gce.goal_conditioned_reward(batch.goal, achieved, sigma),
+    step = Backup(reward=step_reward(batch.goal, next_obs, env, sigma, tilt_cost),
                   discount=gce.goal_conditioned_discount(reached, gamma), next_obs=next_obs)
     if rows.cut is not None:  # a reset ends the walk at the row it cut (the episode's last)
         step = cut_backup(step, rows.cut[walk], gamma)

@@ -44,6 +44,7 @@ from mjx_emp.learners.ddpg import (
     goal_transitions,
     hindsight_goals,
     n_step_backup,
+    one_step_backup,
     relabel_goals,
     stored_rows,
 )
@@ -434,6 +435,17 @@ class HEAgent:
             self.nets.q_value, learner, batch, self.env, cfg.sigma_gc[level], cfg.gamma, backup,
         )
 
+    def gc_backup(self, level: int, rows: GoalTransition, slots: jax.Array, batch: GoalTransition) -> Backup:
+        """The critic target of a minibatch ``batch`` (the stored ``rows`` at ``slots``, goals possibly
+        relabelled) at ``level``: one-step or ``n_step``, with ``tilt_cost`` at level 0, the level
+        whose actions move the joints."""
+        cfg = self.cfg
+        tilt_cost = cfg.tilt_cost if level == 0 else 0.0
+        if cfg.n_step > 1:
+            return n_step_backup(rows, slots, batch, self.env, cfg.sigma_gc[level], cfg.gamma, cfg.eps[level],
+                                 cfg.n_step, tilt_cost)
+        return one_step_backup(batch, self.env, cfg.sigma_gc[level], cfg.gamma, tilt_cost)
+
     def gc_update(self, level: int):
         cfg, opt = self.cfg, self.optimizers
 
@@ -454,11 +466,7 @@ class HEAgent:
                     batch = hindsight_goals(rows, slots, batch, her_key, cfg.her, self.env, cfg.eps[level], cfg.n[level])
                 if cfg.relabel > 0:
                     batch = relabel_goals(batch, relabel_key, cfg.relabel, self.env, cfg.eps[level])
-                backup = None
-                if cfg.n_step > 1:
-                    backup = n_step_backup(rows, slots, batch, self.env, cfg.sigma_gc[level], cfg.gamma,
-                                           cfg.eps[level], cfg.n_step)
-                losses = self.gc_losses(level, learner, box, batch, backup)
+                losses = self.gc_losses(level, learner, box, batch, self.gc_backup(level, rows, slots, batch))
                 return ddpg_step(learner, losses, opt["actor"], opt["critic"], cfg.tau)
 
             learner, losses = jax.lax.scan(step, policies[level], jax.random.split(key, cfg.gc_grad_steps))

@@ -131,6 +131,11 @@ class HEConfig:
     """With ``learn_from_resets``, where the goal spaces score an episode a reset cut short:
     "last" at its last state before the reset; "start" as if the skill never left its start
     state, so a box whose skills fall over earns what a box of skills that never move earns."""
+    tilt_cost: float = 0.0
+    """Subtracted from level 0's per-step reward times the torso's tilt after the action
+    (1 - z of its up axis: 0 upright, 1 on its side, 2 upside down), so the level that moves
+    the joints learns to keep the robot upright; robots with a free torso only (the Ant). 0 is
+    the paper's reward, log N(goal; h(s'), sigma) alone."""
     critics: int = 1
     """Goal-conditioned critics per level. 1 is the paper's DDPG; 2 is TD3's clipped
     double-Q (Fujimoto et al. 2018): two critics, bootstrapped targets from the smaller
@@ -174,6 +179,11 @@ def check_train_config(cfg: HEConfig, positive: tuple[str, ...] = _POSITIVE) -> 
     if cfg.heading_frame and DOMAINS[cfg.env].torso_quat is None:
         allowed = sorted(name for name, spec in DOMAINS.items() if spec.torso_quat is not None)
         raise ConfigError(f"heading_frame: {cfg.env!r} has no free torso; allowed only with env in {allowed}")
+    if not cfg.tilt_cost >= 0.0:
+        raise ConfigError(f"tilt_cost: must be >= 0; got {cfg.tilt_cost}")
+    if cfg.tilt_cost > 0.0 and DOMAINS[cfg.env].torso_quat is None:
+        allowed = sorted(name for name, spec in DOMAINS.items() if spec.torso_quat is not None)
+        raise ConfigError(f"tilt_cost: {cfg.env!r} has no free torso to tilt; allowed only with env in {allowed}")
     check_physics(cfg.solver_iterations, cfg.integrator, cfg.impl)
     check_levels(cfg.n, cfg.eps)
     check_shards(cfg, SHARD_SPLIT)
