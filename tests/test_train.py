@@ -9,7 +9,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from tiny import TINY, tiny_after_two_epochs, tiny_trainer
+from tiny import TINY, TINY1, tiny_after_two_epochs, tiny_trainer
 
 from mjx_emp import gce
 from mjx_emp.algos.he.agent import (
@@ -515,7 +515,7 @@ def test_phase_one_keeps_what_a_reset_cut_short_only_when_asked():
     before the reset and its episodes reach the goal-space replay; the update on them is finite.
     Without it neither is stored."""
     for learn in (False, True):
-        agent = HEAgent(dataclasses.replace(TINY, learn_from_resets=learn))
+        agent = HEAgent(dataclasses.replace(TINY1, learn_from_resets=learn))
         state = agent.init()
         poisoned = state.replace(policies=tuple(
             p.replace(actor=jax.tree.map(lambda x: jnp.full_like(x, jnp.nan), p.actor)) for p in state.policies))
