@@ -266,18 +266,24 @@ def chart_label(preset: str) -> str:
 
 
 def chart_labels(presets: list[str]) -> list[str]:
-    """Each preset's chart label (``chart_label``); where several share one, each gets the
-    config fields that tell them apart (``HE k=1 (sigma_gs 0.25)``), else its preset name."""
+    """Each preset's chart label (``chart_label``). Where several share one, the preset with the
+    shortest name (the base its variants add suffixes to) keeps it, and each other one adds every
+    config field in which it differs from the base (``HE k=1, tilt_cost 1.0``), or its preset
+    name where the configs are the same."""
     labels = [chart_label(p) for p in presets]
     for label in set(labels):
         group = [i for i, other in enumerate(labels) if other == label]
         if len(group) < 2:
             continue
-        configs = [dataclasses.asdict(preset_and_box(presets[i])[0]) for i in group]
-        differing = [field for field in configs[0] if any(c[field] != configs[0][field] for c in configs)][:2]
-        for i, config in zip(group, configs):
+        base = min(group, key=lambda i: (len(presets[i]), i))
+        base_config = dataclasses.asdict(preset_and_box(presets[base])[0])
+        for i in group:
+            if i == base:
+                continue
+            config = dataclasses.asdict(preset_and_box(presets[i])[0])
+            differing = [field for field, value in config.items() if value != base_config[field]]
             told = ", ".join(f"{field} {_plain(config[field])}" for field in differing)
-            labels[i] = f"{label} ({told or presets[i]})"
+            labels[i] = f"{label}, {told or presets[i]}"
     return labels
 
 
@@ -334,7 +340,7 @@ def draw_charts(rows: list[dict], path: Path) -> Path:
                 phase2.fill_between(band["steps"], band["mean"] - band["std"], band["mean"] + band["std"],
                                     color=colour, alpha=0.2, linewidth=0)
         phase2.set_xlabel("phase-2 environment steps")
-        phase2.legend(fontsize=7)
+        phase2.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=2, frameon=False)
     else:
         finals = [[r["phase2_min_distance"] for r in seeds[p] if r["phase2_min_distance"] is not None] for p in presets]
         phase2.bar(range(len(presets)), [np.mean(f) if f else np.nan for f in finals], color=colours,
@@ -354,7 +360,7 @@ def draw_charts(rows: list[dict], path: Path) -> Path:
                    "mean ± std over seeds", fontsize=10)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=110, bbox_inches="tight")  # the legend sits below the axes
     plt.close(fig)
     return path
 

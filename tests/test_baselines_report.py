@@ -45,10 +45,12 @@ def test_chart_labels_name_the_method_and_a_hand_set_box_by_its_side():
     assert chart_label("gcrl-half-cheetah-cpu-w15") == "GCRL 30 m box"  # one goal dimension
 
 
-def test_presets_that_share_a_label_are_told_apart_by_the_fields_where_they_differ():
-    labels = chart_labels(["ant-field-cpu-k1-4iter-ln", "ant-field-cpu-k1-4iter-ln-gs0.25", "metra-ant-field-cpu",
-                           "gcrl-ant-field-cpu-w2", "gcrl-ant-field-cpu-w8"])
-    assert labels == ["HE k=1 (sigma_gs 0.5)", "HE k=1 (sigma_gs 0.25)", "METRA", "GCRL 4x4 m", "GCRL 16x16 m"]
+def test_presets_that_share_a_label_are_told_apart_by_the_fields_where_they_differ_from_the_base():
+    labels = chart_labels(["ant-field-cpu-k1-4iter-ln-gs0.25", "ant-field-cpu-k1-4iter-ln", "metra-ant-field-cpu",
+                           "gcrl-ant-field-cpu-w2", "gcrl-ant-field-cpu-w8", "ant-field-cpu-k1-4iter-ln-resets-start",
+                           "ant-field-cpu-k1-4iter-ln-tilt1"])
+    assert labels == ["HE k=1, sigma_gs 0.25", "HE k=1", "METRA", "GCRL 4x4 m", "GCRL 16x16 m",
+                      "HE k=1, learn_from_resets True, reset_outcome start", "HE k=1, tilt_cost 1.0"]
 
 
 def test_chart_colours_keep_one_hue_per_method_and_never_share_a_colour():
