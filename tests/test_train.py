@@ -52,6 +52,18 @@ def test_schedule_follows_the_appendix_per_level():
         assert list(modes) == [MODE_GC] * 10 + [MODE_GS] + [MODE_EVAL]
 
 
+def test_level_repeats_run_a_levels_whole_block_that_many_times_per_epoch():
+    two_levels = dict(n=(20, 10), sigma_gc=(0.4, 0.8), sigma_gs=(1.75, 3.5), eps=(0.6, 1.2),
+                      init_half_width=(0.5, 1.0), max_half_width=(10, 100), gc_iterations=2, gs_iterations=1)
+    schedule = epoch_schedule(HEConfig(**two_levels, level_repeats=(3, 1)))
+    block = [MODE_GC] * 2 + [MODE_GS] + [MODE_EVAL]
+    assert list(schedule[schedule[:, 0] == 0, 1]) == block * 3
+    assert list(schedule[schedule[:, 0] == 1, 1]) == block
+    assert list(schedule[1:, 0]) == [0] * 12 + [1] * 4  # level 0's blocks all come before level 1's
+    np.testing.assert_array_equal(epoch_schedule(HEConfig(**two_levels, level_repeats=(1, 1))),
+                                  epoch_schedule(HEConfig(**two_levels)))
+
+
 def test_reward_cap_is_the_reward_peak_summed_over_an_endless_episode():
     peak = float(gce.goal_conditioned_reward(jnp.zeros(2), jnp.zeros(2), 0.4))
     assert reward_cap(2, 0.4, TINY.gamma) == pytest.approx(max(peak, peak / (1 - TINY.gamma)), rel=1e-5)
@@ -259,6 +271,8 @@ def test_restore_round_trips_observations():
         (dict(reset_outcome="start"), "reset_outcome: 'start' needs learn_from_resets"),
         (dict(tilt_cost=-1.0), "tilt_cost: must be >= 0"),
         (dict(tilt_cost=1.0), "tilt_cost: 'point_mass' has no free torso to tilt"),
+        (dict(level_repeats=(2,)), "level_repeats: empty .* or one entry >= 1 per level"),
+        (dict(level_repeats=(2, 0)), "level_repeats"),
     ],
 )
 def test_bad_train_config_names_the_field(change, field):

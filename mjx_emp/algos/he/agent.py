@@ -146,12 +146,13 @@ class ItemStats:
 
 
 def epoch_schedule(cfg: HEConfig) -> np.ndarray:
-    """[(level, mode)] of one epoch: start-state refresh, then per level GC, GS and eval items."""
+    """[(level, mode)] of one epoch: start-state refresh, then per level its GC, GS and eval
+    items, the whole block ``level_repeats`` times over (once where that is empty)."""
     items = [(cfg.k, MODE_STARTS)]
     for level in range(cfg.k):
-        items += [(level, MODE_GC)] * cfg.gc_iterations
-        items += [(level, MODE_GS)] * cfg.gs_iterations
-        items += [(level, MODE_EVAL)] * cfg.eval_iterations
+        block = [(level, MODE_GC)] * cfg.gc_iterations + [(level, MODE_GS)] * cfg.gs_iterations
+        block += [(level, MODE_EVAL)] * cfg.eval_iterations
+        items += block * (cfg.level_repeats[level] if cfg.level_repeats else 1)
     return np.asarray(items, np.int32)
 
 

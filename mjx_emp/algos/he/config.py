@@ -73,6 +73,12 @@ class HEConfig:
     """Gradient steps per goal-space iteration (the paper's S=10)."""
     eval_iterations: int = 1
     """Greedy evaluation collections per level per epoch (metrics only; 0 turns them off)."""
+    level_repeats: tuple[int, ...] = ()
+    """How many times each level's iterations (goal-conditioned, goal-space, evaluation) run
+    per epoch, bottom level first. () runs each level once, as the paper's Algorithm 1 does.
+    Each level learns only from the episodes it roots, so in a k-level agent under a fixed
+    env-step budget the upper levels' longer episodes take most of the steps and level 0
+    gets fewer iterations than a one-level agent's; repeating it gives some back."""
     batch_size: int = 256
     """Minibatch size of every gradient step."""
     replay_capacity: int = 100_000
@@ -179,6 +185,9 @@ def check_train_config(cfg: HEConfig, positive: tuple[str, ...] = _POSITIVE) -> 
     if cfg.heading_frame and DOMAINS[cfg.env].torso_quat is None:
         allowed = sorted(name for name, spec in DOMAINS.items() if spec.torso_quat is not None)
         raise ConfigError(f"heading_frame: {cfg.env!r} has no free torso; allowed only with env in {allowed}")
+    if cfg.level_repeats and (len(cfg.level_repeats) != cfg.k or any(r < 1 for r in cfg.level_repeats)):
+        raise ConfigError(f"level_repeats: empty (each level once) or one entry >= 1 per level (k={cfg.k} from n); "
+                          f"got {cfg.level_repeats}")
     if not cfg.tilt_cost >= 0.0:
         raise ConfigError(f"tilt_cost: must be >= 0; got {cfg.tilt_cost}")
     if cfg.tilt_cost > 0.0 and DOMAINS[cfg.env].torso_quat is None:

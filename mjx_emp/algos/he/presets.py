@@ -93,6 +93,9 @@ ANT_FIELD_CPU_K1_4ITER_LN_RESETS_START = dataclasses.replace(ANT_FIELD_CPU_K1_4I
 # learn gaits that flip less (docs/presets.md#paying-for-tilt).
 ANT_FIELD_CPU_K1_4ITER_LN_TILT = dataclasses.replace(ANT_FIELD_CPU_K1_4ITER_LN, tilt_cost=1.0)
 ANT_FIELD_CPU_K2_4ITER_LN_TILT = dataclasses.replace(ANT_FIELD_CPU_K2_4ITER_LN, tilt_cost=1.0)
+# The two-level learner with level 0's iterations run four times per epoch: in the same env steps its
+# level 0 gets about as many iterations as the one-level learner's (docs/presets.md#repeating-level-0).
+ANT_FIELD_CPU_K2_4ITER_LN_REP4 = dataclasses.replace(ANT_FIELD_CPU_K2_4ITER_LN, level_repeats=(4, 1))
 
 # The cages at CPU scale: the best CPU learner of each robot's field, in its Table-1 cage
 # (docs/presets.md#the-cages-on-a-cpu).
@@ -128,6 +131,8 @@ PRESETS: dict[str, tuple[str, HEConfig]] = {
                                         "on its side (tilt_cost)", ANT_FIELD_CPU_K1_4ITER_LN_TILT),
     "ant-field-cpu-k2-4iter-ln-tilt1": ("CPU: ant-field-cpu-k2-4iter-ln with level 0 paying 1 per step for a torso "
                                         "on its side (tilt_cost)", ANT_FIELD_CPU_K2_4ITER_LN_TILT),
+    "ant-field-cpu-k2-4iter-ln-rep4": ("CPU: ant-field-cpu-k2-4iter-ln with level 0's iterations run four times "
+                                       "per epoch (level_repeats)", ANT_FIELD_CPU_K2_4ITER_LN_REP4),
     "half-cheetah-cpu-k1-4iter": ("CPU: half-cheetah-cpu-k1 with 4 solver iterations (accurate contacts)",
                                   HALF_CHEETAH_CPU_K1_4ITER),
     "ant-field-cpu-k1-her-ln": ("CPU: ant-field-cpu-k1 with hindsight goals and a LayerNorm critic, 120 epochs",
