@@ -94,7 +94,7 @@ ANT_FIELD_CPU_K1_4ITER_LN_RESETS_START = dataclasses.replace(ANT_FIELD_CPU_K1_4I
 ANT_FIELD_CPU_K1_4ITER_LN_TILT = dataclasses.replace(ANT_FIELD_CPU_K1_4ITER_LN, tilt_cost=1.0)
 ANT_FIELD_CPU_K2_4ITER_LN_TILT = dataclasses.replace(ANT_FIELD_CPU_K2_4ITER_LN, tilt_cost=1.0)
 # The two-level learner with level 0's iterations run four times per epoch: in the same env steps its
-# level 0 gets about as many iterations as the one-level learner's (docs/presets.md#repeating-level-0).
+# level 0 gets over half the one-level learner's iterations, not a quarter (docs/presets.md#repeating-level-0).
 ANT_FIELD_CPU_K2_4ITER_LN_REP4 = dataclasses.replace(ANT_FIELD_CPU_K2_4ITER_LN, level_repeats=(4, 1))
 
 # The cages at CPU scale: the best CPU learner of each robot's field, in its Table-1 cage
