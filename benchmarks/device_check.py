@@ -9,7 +9,8 @@ CUDA device are present):
 2. ``train``: compile seconds, epoch seconds and env steps/s of ``ant-field-small-k1``;
 3. ``seeds``: 1, 4 and 8 seeds of it in one vmapped program (``benchmarks/seeds.py``'s timing);
 4. ``memory``: the preflight's estimate (state and one epoch's working set) against the
-   device's memory and the peak it reports.
+   device's memory; ``train`` adds the device's peak after its epochs (run ``memory`` first,
+   as ``--steps memory train ...`` does, so that the peak is that preset's alone).
 
 ``--dry-run`` runs every step at tiny sizes on the point mass (B = 8, 8 environments, 2
 seeds, ``point-mass-k1`` for the training steps) so that the script can be tested on a CPU
@@ -55,6 +56,8 @@ class Args:
     batch_sizes: tuple[int, ...] = (4096, 16384, 32768)
     seed_counts: tuple[int, ...] = (1, 4, 8)
     impls: tuple[str, ...] = ("jax", "warp")
+    steps: tuple[str, ...] = ("rollout", "train", "seeds", "memory")
+    """Which steps run, in this order (a short lease puts the ones it needs most first)."""
     budget_s: float = 420.0
     """Start no new step after this many seconds (one command may run 10 minutes)."""
     out: str = ""
@@ -93,13 +96,21 @@ def train_config(impl: str, plan: dict):
     return dataclasses.replace(all_presets()[plan["preset"]][1], impl=impl, **plan["train"])
 
 
+def device_memory_stats() -> dict:
+    """The default device's allocator figures (empty where the device reports none, as a CPU)."""
+    device = jax.local_devices()[0]
+    return dict((device.memory_stats() if hasattr(device, "memory_stats") else None) or {})
+
+
 def train_step(impl: str, plan: dict) -> dict:
     cfg = train_config(impl, plan)
     agent = make_agent(cfg)
     timing = seeds_benchmark.time_program(agent.init, agent.train_epoch, plan["repeats"])
     steps = float(agent.metrics(*agent.train_epoch(agent.init()), 1.0)["env_steps"])  # one epoch's
+    # The process's peak so far: with ``memory`` run first, that is this preset's init and epochs.
+    peak = device_memory_stats().get("peak_bytes_in_use")
     return {"impl": impl, "preset": plan["preset"], "num_envs": cfg.num_envs, **timing,
-            "env_steps_per_epoch": steps, "env_steps_per_s": steps / timing["epoch_s"]}
+            "env_steps_per_epoch": steps, "env_steps_per_s": steps / timing["epoch_s"], "peak_bytes_in_use": peak}
 
 
 def seeds_step(impl: str, plan: dict) -> list[dict]:
@@ -116,16 +127,18 @@ def memory_step(impl: str, plan: dict) -> dict:
     cfg = train_config(impl, plan)
     agent = make_agent(cfg)
     free, where = available_bytes()
-    device = jax.local_devices()[0]
-    stats = device.memory_stats() if hasattr(device, "memory_stats") else None
     return {"impl": impl, "state_bytes": state_bytes(agent), "working_set_bytes": working_set_bytes(cfg, agent.env),
-            "free_bytes": free, "where": where, "device_memory_stats": dict(stats or {})}
+            "free_bytes": free, "where": where, "device_memory_stats": device_memory_stats()}
 
 
 STEPS = {"rollout": rollout_step, "train": train_step, "seeds": seeds_step, "memory": memory_step}
 
 
 def main(args: Args) -> dict:
+    unknown = [name for name in args.steps if name not in STEPS]
+    if unknown:
+        print(f"--steps: unknown {unknown}; allowed values are {sorted(STEPS)}", file=sys.stderr)
+        raise SystemExit(2)
     out = Path(args.out or f"benchmarks/results/device_check_{jax.default_backend()}.json")
     out.parent.mkdir(parents=True, exist_ok=True)
     plan = sizes(args)
@@ -134,7 +147,8 @@ def main(args: Args) -> dict:
     start = time.perf_counter()
     for impl in args.impls:
         problem = backend_problem(impl)
-        for name, step in STEPS.items():
+        for name in args.steps:
+            step = STEPS[name]
             entry = {"step": name, "impl": impl}
             if problem:
                 entry["skipped"] = problem

@@ -1,6 +1,7 @@
-"""The GPU machine's prepared check runs every step at tiny sizes here, so it cannot rot."""
+"""The GPU machine's prepared session runs every step at tiny sizes here, so it cannot rot."""
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -8,15 +9,20 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def test_the_device_check_dry_run_runs_every_step_and_writes_json(tmp_path):
-    out = tmp_path / "check.json"
-    result = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "device_check.py"), "--dry-run",
-                             "--out", str(out)], capture_output=True, text=True, timeout=900, cwd=ROOT)
-    assert result.returncode == 0, result.stderr[-3000:]
-    report = json.loads(out.read_text())
+def test_the_device_session_dry_run_runs_every_step_and_writes_json(tmp_path):
+    out = tmp_path / "out"
+    env = {**os.environ, "DRY": "1", "WHEELS": "none", "PYTHON": sys.executable, "OUT": str(out),
+           "RUNS": str(tmp_path / "runs"), "TOTAL_S": "600", "CHECK_S": "400",
+           "JAX_COMPILATION_CACHE_DIR": str(tmp_path / "cache")}
+    result = subprocess.run(["bash", str(ROOT / "benchmarks" / "device_session.sh")], capture_output=True, text=True,
+                            timeout=900, cwd=ROOT, env=env)
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    assert "smoke epoch" in (out / "versions.txt").read_text()
+    report = json.loads((out / "device_check_gpu.json").read_text())
     assert report["dry_run"]
-    jax_steps = {s["step"]: s for s in report["steps"] if s["impl"] == "jax"}
-    assert sorted(jax_steps) == ["memory", "rollout", "seeds", "train"]
+    jax_steps = [s for s in report["steps"] if s["impl"] == "jax"]
+    assert [s["step"] for s in jax_steps] == ["memory", "train", "rollout", "seeds"]  # the session's order
+    jax_steps = {s["step"]: s for s in jax_steps}
     assert not [s for s in jax_steps.values() if "error" in s or "skipped" in s], jax_steps
     assert {row["k"] for row in jax_steps["rollout"]["result"]} == {1}
     assert [row["seeds"] for row in jax_steps["seeds"]["result"]] == [2]
@@ -24,3 +30,15 @@ def test_the_device_check_dry_run_runs_every_step_and_writes_json(tmp_path):
     assert jax_steps["memory"]["result"]["state_bytes"] > 0
     if report["backend"] != "gpu":  # warp cannot run here: every step says why instead of failing
         assert all("warp" in s["skipped"] for s in report["steps"] if s["impl"] == "warp")
+    for preset in ("point-mass-k1", "point-mass-k2"):  # the training rows ran their two epochs
+        lines = (out / f"{preset}.metrics.jsonl").read_text().splitlines()
+        assert [json.loads(line)["epoch"] for line in lines] == [1, 2]
+
+
+def test_the_device_check_refuses_an_unknown_step_with_exit_2(tmp_path):
+    result = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "device_check.py"), "--dry-run",
+                             "--steps", "memory", "warmup", "--out", str(tmp_path / "x.json")],
+                            capture_output=True, text=True, timeout=300, cwd=ROOT)
+    assert result.returncode == 2
+    assert "--steps" in result.stderr and "warmup" in result.stderr and "rollout" in result.stderr
+    assert not (tmp_path / "x.json").exists()

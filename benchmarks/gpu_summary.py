@@ -1,0 +1,101 @@
+"""Summarise one GPU session's files (what ``benchmarks/device_session.sh`` leaves in $OUT):
+the prepared check's figures and each training row's epochs, as JSON and Markdown tables.
+
+    python benchmarks/gpu_summary.py benchmarks/results/gpu_h200 --out benchmarks/results/gpu_session_h200.json
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import re
+import statistics
+from pathlib import Path
+
+import tyro
+
+
+@dataclasses.dataclass
+class Args:
+    """One session folder in, one summary out."""
+
+    session: tyro.conf.Positional[str]
+    out: str = ""
+    """JSON output; empty prints only."""
+
+
+def read_versions(path: Path) -> dict:
+    """The GPU's name and the package versions the session's smoke test printed."""
+    if not path.exists():
+        return {}
+    text = path.read_text()
+    found = {name: version for name, version in re.findall(r"^([a-z][\w-]*) (\d[\w.]*|missing)$", text, re.M)}
+    gpu = re.search(r"NVIDIA [A-Z]\w+", text)
+    return {"gpu": gpu.group(0) if gpu else None, "packages": found}
+
+
+def check_rows(session: Path) -> dict:
+    """Every step the prepared check finished, from each ``device_check*.json`` of the session."""
+    rows: dict = {"rollout": [], "train": [], "seeds": [], "memory": [], "not_run": []}
+    for path in sorted(session.glob("device_check*.json")):
+        for step in json.loads(path.read_text())["steps"]:
+            if "result" in step:
+                result = step["result"]
+                rows[step["step"]] += result if isinstance(result, list) else [result]
+            else:
+                rows["not_run"].append({"file": path.name, "step": step["step"], "impl": step["impl"],
+                                        "why": step.get("skipped") or step.get("error")})
+    return rows
+
+
+def training_row(path: Path) -> dict:
+    """One training row's throughput and where its top goal space stood when the session ended."""
+    epochs = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    warm = epochs[1:] or epochs
+    top = [e["levels"][-1] for e in epochs]
+    largest = max(range(len(top)), key=lambda i: top[i]["volume"])
+    return {
+        "preset": path.name.removesuffix(".metrics.jsonl"),
+        "epochs": len(epochs),
+        "env_steps": epochs[-1]["env_steps"],
+        "first_epoch_s": epochs[0]["seconds"],
+        "median_epoch_s": statistics.median(e["seconds"] for e in warm),
+        "median_env_steps_per_s": statistics.median(e["env_steps_per_s"] for e in warm),
+        "flips_per_1000_env_steps": 1000 * sum(e.get("flip_resets", 0) for e in epochs) / epochs[-1]["env_steps"],
+        "final_volume": top[-1]["volume"], "final_success": top[-1]["success"],
+        "largest_volume": top[largest]["volume"], "largest_volume_epoch": epochs[largest]["epoch"],
+        "success_at_largest": top[largest]["success"],
+    }
+
+
+def markdown(summary: dict) -> str:
+    """The tables docs/gpu.md shows."""
+    lines = ["| B | k | raw mjx.step (physics steps/s) | k-level rollout (useful steps/s) | of raw |",
+             "|---|---|---|---|---|"]
+    for row in summary["check"]["rollout"]:
+        lines.append(f"| {row['batch']} | {row['k']} | {row['raw_physics_steps_per_s']:.3g} | "
+                     f"{row['hier_useful_physics_steps_per_s']:.3g} | {row['hier_over_raw']:.2f} |")
+    lines += ["", "| row | epochs | env steps | first epoch (s) | epoch (s, median) | env steps/s | "
+                  "flips per 1,000 steps | top box at the end |", "|---|---|---|---|---|---|---|---|"]
+    for row in summary["training"]:
+        lines.append(f"| {row['preset']} | {row['epochs']} | {row['env_steps'] / 1e6:.1f} M | "
+                     f"{row['first_epoch_s']:.1f} | "
+                     f"{row['median_epoch_s']:.2f} | {row['median_env_steps_per_s']:.3g} | "
+                     f"{row['flips_per_1000_env_steps']:.2f} | "
+                     f"{row['final_volume']:.1f} at {row['final_success']:.2f} |")
+    return "\n".join(lines)
+
+
+def main(args: Args) -> dict:
+    session = Path(args.session)
+    summary = {"session": str(session), **read_versions(session / "versions.txt"), "check": check_rows(session),
+               "training": [training_row(path) for path in sorted(session.glob("*.metrics.jsonl"))]}
+    print(markdown(summary))
+    if args.out:
+        Path(args.out).write_text(json.dumps(summary, indent=1))
+        print(f"wrote {args.out}")
+    return summary
+
+
+if __name__ == "__main__":
+    main(tyro.cli(Args))

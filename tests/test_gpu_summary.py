@@ -1,0 +1,42 @@
+"""The GPU session summary reads what a session leaves behind and reports it faithfully."""
+
+import json
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+
+import gpu_summary  # noqa: E402
+
+
+def epoch(n: int, seconds: float, volume: float, success: float) -> dict:
+    return {"epoch": n, "env_steps": 1000.0 * n, "seconds": seconds, "env_steps_per_s": 1000.0 / seconds,
+            "flip_resets": 3, "levels": [{"level": 0, "volume": volume, "success": success}]}
+
+
+def test_the_summary_reports_the_check_and_each_training_row(tmp_path, capsys):
+    (tmp_path / "versions.txt").write_text("|   0  NVIDIA H200   On |\njax 0.11.2\nmujoco 3.17.0\ntyro missing\n")
+    rollout = [{"batch": 8, "k": k, "raw_physics_steps_per_s": 100.0, "hier_useful_physics_steps_per_s": 90.0 / k,
+                "hier_over_raw": 0.9 / k} for k in (1, 2)]
+    check = {"steps": [{"step": "train", "impl": "jax", "result": {"preset": "p", "epoch_s": 2.0}},
+                       {"step": "rollout", "impl": "jax", "result": rollout},
+                       {"step": "seeds", "impl": "jax", "skipped": "time budget of 1 s spent"}]}
+    (tmp_path / "device_check_gpu.json").write_text(json.dumps(check))
+    rows = [epoch(1, 10.0, 1.0, 1.0), epoch(2, 2.0, 5.0, 0.5), epoch(3, 4.0, 3.0, 0.7)]
+    (tmp_path / "ant.metrics.jsonl").write_text("\n".join(json.dumps(r) for r in rows) + "\n")
+    out = tmp_path / "summary.json"
+    summary = gpu_summary.main(gpu_summary.Args(session=str(tmp_path), out=str(out)))
+    assert json.loads(out.read_text()) == summary
+    assert summary["gpu"] == "NVIDIA H200"
+    assert summary["packages"] == {"jax": "0.11.2", "mujoco": "3.17.0", "tyro": "missing"}
+    assert summary["check"]["rollout"] == rollout and summary["check"]["train"] == [check["steps"][0]["result"]]
+    assert summary["check"]["not_run"] == [{"file": "device_check_gpu.json", "step": "seeds", "impl": "jax",
+                                            "why": "time budget of 1 s spent"}]
+    (row,) = summary["training"]
+    assert row["preset"] == "ant" and row["epochs"] == 3 and row["env_steps"] == 3000.0
+    assert row["first_epoch_s"] == 10.0 and row["median_epoch_s"] == 3.0  # the first epoch (compile) left out
+    assert row["flips_per_1000_env_steps"] == 3.0
+    assert (row["final_volume"], row["final_success"]) == (3.0, 0.7)
+    assert (row["largest_volume"], row["largest_volume_epoch"], row["success_at_largest"]) == (5.0, 2, 0.5)
+    table = capsys.readouterr().out
+    assert "| 8 | 2 | 100 | 45 | 0.45 |" in table and "| ant | 3 | 0.0 M | 10.0 | 3.00 |" in table
