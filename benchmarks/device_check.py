@@ -1,6 +1,6 @@
 """One prepared check for a GPU machine: everything the paper-scale path needs measured in one
-command of under 8 minutes, written to JSON step by step (a step that fails is recorded and
-the next one runs).
+command, written to JSON step by step (a step that fails is recorded and the next one runs;
+``--steps`` picks the steps and their order when a lease is short).
 
 Steps, each on every MJX backend that can run here (``jax``; ``warp`` where mujoco-warp and a
 CUDA device are present):
