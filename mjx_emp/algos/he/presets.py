@@ -96,6 +96,7 @@ ANT_FIELD_CPU_K2_4ITER_LN_TILT = dataclasses.replace(ANT_FIELD_CPU_K2_4ITER_LN, 
 # The two-level learner with level 0's iterations run four times per epoch: in the same env steps its
 # level 0 gets over half the one-level learner's iterations, not a quarter (docs/presets.md#repeating-level-0).
 ANT_FIELD_CPU_K2_4ITER_LN_REP4 = dataclasses.replace(ANT_FIELD_CPU_K2_4ITER_LN, level_repeats=(4, 1))
+HALF_CHEETAH_CPU_K2_REP4 = dataclasses.replace(HALF_CHEETAH_CPU_K2, level_repeats=(4, 1))
 
 # The cages at CPU scale: the best CPU learner of each robot's field, in its Table-1 cage
 # (docs/presets.md#the-cages-on-a-cpu).
@@ -133,6 +134,8 @@ PRESETS: dict[str, tuple[str, HEConfig]] = {
                                         "on its side (tilt_cost)", ANT_FIELD_CPU_K2_4ITER_LN_TILT),
     "ant-field-cpu-k2-4iter-ln-rep4": ("CPU: ant-field-cpu-k2-4iter-ln with level 0's iterations run four times "
                                        "per epoch (level_repeats)", ANT_FIELD_CPU_K2_4ITER_LN_REP4),
+    "half-cheetah-cpu-k2-rep4": ("CPU: half-cheetah-cpu-k2 with level 0's iterations run four times per epoch "
+                                 "(level_repeats)", HALF_CHEETAH_CPU_K2_REP4),
     "half-cheetah-cpu-k1-4iter": ("CPU: half-cheetah-cpu-k1 with 4 solver iterations (accurate contacts)",
                                   HALF_CHEETAH_CPU_K1_4ITER),
     "ant-field-cpu-k1-her-ln": ("CPU: ant-field-cpu-k1 with hindsight goals and a LayerNorm critic, 120 epochs",
