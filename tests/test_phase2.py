@@ -180,6 +180,9 @@ def test_every_table_2_preset_builds_on_a_phase_1_preset_of_the_same_domain():
     assert phase2_preset_for(PRESETS["ant-field-small-k1"][1]) == "ant-field-small-k1"
     assert phase2_preset_for(dataclasses.replace(PRESETS["ant-field-cpu-k1"][1], seed=3)) == "ant-field-cpu-k1"
     assert phase2_preset_for(PRESETS["point-mass-k2"][1]) == "point-mass-wide-k2"
+    # A variant of a preset without a task of its own gets the task of its domain, n and scale.
+    assert phase2_preset_for(PRESETS["half-cheetah-cpu-k2-rep4"][1]) == "half-cheetah-cpu-k2"
+    assert phase2_preset_for(PRESETS["ant-field-cpu-k2-4iter-ln-rep4"][1]) == "ant-field-cpu-k2"
     assert phase2_preset_for(dataclasses.replace(PRESETS["point-mass-k2"][1], n=(7, 7))) is None
     # Baselines get their domain's one-level task at their own scale (CPU or GPU).
     baselines = all_presets()
