@@ -1,11 +1,15 @@
 #!/bin/bash
 # One lease of a GPU machine in one command: a smoke test that stops early (and cheaply) if the
 # machine's packages cannot run the library, the prepared check (benchmarks/device_check.py), then
-# ant-field-small-k1 and half-cheetah-small-k1 trained side by side for the time that is left.
-# Everything lands in $OUT: versions.txt, smoke.log, device_check_gpu.json, check.log, and
-# <preset>.metrics.jsonl / <preset>.log per training row. See docs/gpu.md.
+# the training rows (ROWS, default ant-field-small-k1 and half-cheetah-small-k1) side by side for the
+# time that is left, and, when PHASE2_S > 0, each row's phase 2 and `mjx-emp eval` in the last PHASE2_S
+# seconds. Everything lands in $OUT: versions.txt (the settings, the GPU, the packages), smoke.log,
+# device_check_gpu.json, check.log, and per row <preset>.log, <preset>.metrics.jsonl,
+# <preset>.phase2.jsonl and <preset>.eval.json. See docs/gpu.md.
 #
 #   OUT=/tmp/out TOTAL_S=560 CHECK_S=300 bash benchmarks/device_session.sh
+#   OUT=/tmp/out TOTAL_S=540 CHECK_S=0 PHASE2_S=200 ROWS=ant-field-small-k1 \
+#     TRAIN_FLAGS="--solver-iterations 4 --critic-layer-norm" bash benchmarks/device_session.sh
 #   DRY=1 OUT=/tmp/out TOTAL_S=240 CHECK_S=150 bash benchmarks/device_session.sh   # tiny sizes, one row
 #
 # Wheels in .whl/ (mujoco, mujoco-mjx, tyro and what they need, for the machine's Python) are
@@ -14,7 +18,10 @@
 set -u
 OUT=${OUT:-/tmp/device_out}
 TOTAL_S=${TOTAL_S:-560}  # seconds this script may take, all steps together
-CHECK_S=${CHECK_S:-300}  # of which the prepared check may take at most this many
+CHECK_S=${CHECK_S:-300}  # of which the prepared check may take at most this many; 0 skips it
+PHASE2_S=${PHASE2_S:-0}  # of which the rows' phase 2 and eval take the last this many; 0: none
+ROWS=${ROWS:-ant-field-small-k1 half-cheetah-small-k1}  # presets trained side by side
+TRAIN_FLAGS=${TRAIN_FLAGS:-}  # config flags for every row, e.g. --solver-iterations 4
 DRY=${DRY:-0}
 RUNS=${RUNS:-/tmp/runs}  # the training rows' run directories (their checkpoints stay on the machine)
 PY=${PYTHON:-python3}
@@ -54,7 +61,9 @@ agent = make_agent(cfg)
 print("smoke epoch", agent.metrics(*agent.train_epoch(agent.init()), 1.0)["env_steps"])
 PY
 }
-nvidia-smi > "$OUT/versions.txt" 2>&1
+printf '%s\n' "ROWS=$ROWS" "TRAIN_FLAGS=$TRAIN_FLAGS" "TOTAL_S=$TOTAL_S" "CHECK_S=$CHECK_S" \
+  "PHASE2_S=$PHASE2_S" "DRY=$DRY" > "$OUT/versions.txt"  # the settings first, then the machine
+nvidia-smi >> "$OUT/versions.txt" 2>&1
 if ! smoke >> "$OUT/versions.txt" 2> "$OUT/smoke.log"; then
   echo "smoke test failed with the machine's packages; trying the pinned flax/optax/orbax" | tee -a "$OUT/smoke.log"
   $PY -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site \
@@ -63,24 +72,44 @@ if ! smoke >> "$OUT/versions.txt" 2> "$OUT/smoke.log"; then
 fi
 cat "$OUT/versions.txt"
 
-check_args=(--out "$OUT/device_check_gpu.json" --budget-s $((CHECK_S - 120)) --steps memory train rollout seeds)
-[ "$DRY" = 1 ] && check_args+=(--dry-run)
-timeout --signal=KILL "$CHECK_S" $PY benchmarks/device_check.py "${check_args[@]}" 2>&1 \
-  | tee "$OUT/check.log" | grep -v '^W'
+if [ "$CHECK_S" -gt 0 ]; then
+  check_args=(--out "$OUT/device_check_gpu.json" --budget-s $((CHECK_S - 120)) --steps memory train rollout seeds)
+  [ "$DRY" = 1 ] && check_args+=(--dry-run)
+  timeout --signal=KILL "$CHECK_S" $PY benchmarks/device_check.py "${check_args[@]}" 2>&1 \
+    | tee "$OUT/check.log" | grep -v '^W'
+fi
 
-rows=(ant-field-small-k1 half-cheetah-small-k1)
-train_args=()
-[ "$DRY" = 1 ] && rows=(point-mass-k1) && train_args=(--epochs 2)  # one row: the suite pays for each compile
-budget=$(( $(left) - 15 ))
+read -r -a rows <<< "$ROWS"
+read -r -a train_args <<< "$TRAIN_FLAGS"
+phase2_args=()
+eval_args=()
+if [ "$DRY" = 1 ]; then  # one row: the suite pays for each compile
+  rows=(point-mass-k1) && train_args+=(--epochs 2)
+  phase2_args=(--epochs 1 --num-envs 4 --iterations 1 --grad-steps 1 --eval-rounds 1)
+  eval_args=(--episodes 8)
+fi
+budget=$(( $(left) - 15 - PHASE2_S ))
 echo "training ${rows[*]} side by side for $budget s"
-export XLA_PYTHON_CLIENT_MEM_FRACTION=0.4  # two processes share the one GPU
+[ "${#rows[@]}" -gt 1 ] && export XLA_PYTHON_CLIENT_MEM_FRACTION=0.$(( 80 / ${#rows[@]} ))  # one GPU, shared
 for preset in "${rows[@]}"; do
   timeout --signal=TERM --kill-after=10 "$budget" \
     $PY -m mjx_emp.cli train "$preset" --run-dir "$RUNS/$preset" "${train_args[@]}" > "$OUT/$preset.log" 2>&1 &
 done
 wait
+if [ "$PHASE2_S" -gt 0 ]; then  # phase 2 on each row's newest checkpoint, then its figures
+  for preset in "${rows[@]}"; do
+    (
+      timeout --signal=TERM --kill-after=10 $(( PHASE2_S * 6 / 10 )) \
+        $PY -m mjx_emp.cli phase2 "$RUNS/$preset" "${phase2_args[@]}" >> "$OUT/$preset.log" 2>&1
+      timeout --signal=KILL $(( $(left) > 20 ? $(left) - 10 : 10 )) $PY -m mjx_emp.cli eval "$RUNS/$preset" "${eval_args[@]}" \
+        --out "$OUT/$preset.eval.json" >> "$OUT/$preset.log" 2>&1
+    ) &
+  done
+  wait
+fi
 for preset in "${rows[@]}"; do
   cp "$RUNS/$preset/metrics.jsonl" "$OUT/$preset.metrics.jsonl" 2>/dev/null
+  cp "$RUNS/$preset/phase2/metrics.jsonl" "$OUT/$preset.phase2.jsonl" 2>/dev/null
   tail -3 "$OUT/$preset.log"
 done
 echo "session done in $(( $(date +%s) - began )) s"

@@ -1,5 +1,6 @@
 """Summarise one GPU session's files (what ``benchmarks/device_session.sh`` leaves in $OUT):
-the prepared check's figures and each training row's epochs, as JSON and Markdown tables.
+the session's settings, the prepared check's figures, each training row's epochs and each row's
+phase 2, as JSON and Markdown tables.
 
     python benchmarks/gpu_summary.py benchmarks/results/gpu_h200 --out benchmarks/results/gpu_session_h200.json
 """
@@ -34,6 +35,14 @@ def read_versions(path: Path) -> dict:
     return {"gpu": gpu.group(0) if gpu else None, "packages": found}
 
 
+def read_settings(path: Path) -> dict:
+    """The session's settings (rows, flags, time budgets): the ``NAME=value`` lines the session
+    writes at the top of ``versions.txt``."""
+    if not path.exists():
+        return {}
+    return dict(re.findall(r"^([A-Z][A-Z0-9_]*)=(.*)$", path.read_text(), re.M))
+
+
 def check_rows(session: Path) -> dict:
     """Every step the prepared check finished, from each ``device_check*.json`` of the session."""
     rows: dict = {"rollout": [], "train": [], "seeds": [], "memory": [], "not_run": []}
@@ -65,6 +74,21 @@ def training_row(path: Path) -> dict:
         "final_volume": top[-1]["volume"], "final_success": top[-1]["success"],
         "largest_volume": top[largest]["volume"], "largest_volume_epoch": epochs[largest]["epoch"],
         "success_at_largest": top[largest]["success"],
+        "top_box_by_epoch": [[e["epoch"], e["levels"][-1]["volume"], e["levels"][-1]["success"]] for e in epochs],
+    }
+
+
+def phase2_row(path: Path) -> dict:
+    """One row's phase 2: its epochs' greedy minimum distance and success, and where it ended."""
+    epochs = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    return {
+        "preset": path.name.removesuffix(".phase2.jsonl"),
+        "epochs": len(epochs),
+        "env_steps": epochs[-1]["env_steps"],
+        "median_epoch_s": statistics.median(e["seconds"] for e in epochs[1:] or epochs),
+        "min_distance_by_epoch": [e["min_distance"] for e in epochs],
+        "success_by_epoch": [e["success"] for e in epochs],
+        "final_min_distance": epochs[-1]["min_distance"], "final_success": epochs[-1]["success"],
     }
 
 
@@ -83,13 +107,22 @@ def markdown(summary: dict) -> str:
                      f"{row['median_epoch_s']:.2f} | {row['median_env_steps_per_s']:.3g} | "
                      f"{row['flips_per_1000_env_steps']:.2f} | "
                      f"{row['final_volume']:.1f} at {row['final_success']:.2f} |")
+    if summary["phase2"]:
+        lines += ["", "| row | phase-2 epochs | env steps | epoch (s, median) | min distance (m) by epoch | "
+                      "success at the end |", "|---|---|---|---|---|---|"]
+    for row in summary["phase2"]:
+        distances = ", ".join(f"{d:.1f}" for d in row["min_distance_by_epoch"])
+        lines.append(f"| {row['preset']} | {row['epochs']} | {row['env_steps'] / 1e6:.1f} M | "
+                     f"{row['median_epoch_s']:.1f} | {distances} | {row['final_success']:.2f} |")
     return "\n".join(lines)
 
 
 def main(args: Args) -> dict:
     session = Path(args.session)
-    summary = {"session": str(session), **read_versions(session / "versions.txt"), "check": check_rows(session),
-               "training": [training_row(path) for path in sorted(session.glob("*.metrics.jsonl"))]}
+    summary = {"session": str(session), "settings": read_settings(session / "versions.txt"),
+               **read_versions(session / "versions.txt"), "check": check_rows(session),
+               "training": [training_row(path) for path in sorted(session.glob("*.metrics.jsonl"))],
+               "phase2": [phase2_row(path) for path in sorted(session.glob("*.phase2.jsonl"))]}
     print(markdown(summary))
     if args.out:
         Path(args.out).write_text(json.dumps(summary, indent=1))

@@ -12,7 +12,7 @@ ROOT = Path(__file__).resolve().parents[1]
 def test_the_device_session_dry_run_runs_every_step_and_writes_json(tmp_path):
     out = tmp_path / "out"
     env = {**os.environ, "DRY": "1", "WHEELS": "none", "PYTHON": sys.executable, "OUT": str(out),
-           "RUNS": str(tmp_path / "runs"), "TOTAL_S": "600", "CHECK_S": "400",
+           "RUNS": str(tmp_path / "runs"), "TOTAL_S": "720", "CHECK_S": "400", "PHASE2_S": "200",
            "JAX_COMPILATION_CACHE_DIR": str(tmp_path / "cache")}
     result = subprocess.run(["bash", str(ROOT / "benchmarks" / "device_session.sh")], capture_output=True, text=True,
                             timeout=900, cwd=ROOT, env=env)
@@ -32,6 +32,11 @@ def test_the_device_session_dry_run_runs_every_step_and_writes_json(tmp_path):
         assert all("warp" in s["skipped"] for s in report["steps"] if s["impl"] == "warp")
     lines = (out / "point-mass-k1.metrics.jsonl").read_text().splitlines()  # the training row ran its two epochs
     assert [json.loads(line)["epoch"] for line in lines] == [1, 2]
+    assert "PHASE2_S=200" in (out / "versions.txt").read_text()  # the settings head the file
+    lines = (out / "point-mass-k1.phase2.jsonl").read_text().splitlines()  # phase 2 on the row's skills
+    assert [json.loads(line)["epoch"] for line in lines] == [1]
+    (run,) = json.loads((out / "point-mass-k1.eval.json").read_text())["runs"]
+    assert run["epoch"] == 2 and run["phase2"]["epoch"] == 1 and run["phase2"]["episodes"] == 8
 
 
 def test_the_device_check_refuses_an_unknown_step_with_exit_2(tmp_path):

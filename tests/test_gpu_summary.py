@@ -38,5 +38,25 @@ def test_the_summary_reports_the_check_and_each_training_row(tmp_path, capsys):
     assert row["flips_per_1000_env_steps"] == 3.0
     assert (row["final_volume"], row["final_success"]) == (3.0, 0.7)
     assert (row["largest_volume"], row["largest_volume_epoch"], row["success_at_largest"]) == (5.0, 2, 0.5)
+    assert row["top_box_by_epoch"] == [[1, 1.0, 1.0], [2, 5.0, 0.5], [3, 3.0, 0.7]]
+    assert summary["phase2"] == [] and summary["settings"] == {}
     table = capsys.readouterr().out
     assert "| 8 | 2 | 100 | 45 | 0.45 |" in table and "| ant | 3 | 0.0 M | 10.0 | 3.00 |" in table
+    assert "phase-2 epochs" not in table
+
+
+def test_the_summary_reports_the_settings_and_each_rows_phase2(tmp_path, capsys):
+    (tmp_path / "versions.txt").write_text("ROWS=ant\nTRAIN_FLAGS=--solver-iterations 4 --critic-layer-norm\n"
+                                           "|====|\n|   0  NVIDIA H200   On |\njax 0.11.2\n")
+    (tmp_path / "ant.metrics.jsonl").write_text(json.dumps(epoch(1, 10.0, 1.0, 1.0)) + "\n")
+    phase2 = [{"epoch": n, "env_steps": 100.0 * n, "seconds": s, "min_distance": d, "success": w}
+              for n, s, d, w in ((1, 50.0, 11.0, 0.05), (2, 20.0, 10.5, 0.07), (3, 30.0, 9.25, 0.1))]
+    (tmp_path / "ant.phase2.jsonl").write_text("\n".join(json.dumps(r) for r in phase2) + "\n")
+    summary = gpu_summary.main(gpu_summary.Args(session=str(tmp_path)))
+    assert summary["settings"] == {"ROWS": "ant", "TRAIN_FLAGS": "--solver-iterations 4 --critic-layer-norm"}
+    (row,) = summary["phase2"]
+    assert row["preset"] == "ant" and row["epochs"] == 3 and row["env_steps"] == 300.0
+    assert row["median_epoch_s"] == 25.0  # the first epoch (compile) left out
+    assert row["min_distance_by_epoch"] == [11.0, 10.5, 9.25] and row["success_by_epoch"] == [0.05, 0.07, 0.1]
+    assert (row["final_min_distance"], row["final_success"]) == (9.25, 0.1)
+    assert "| ant | 3 | 0.0 M | 25.0 | 11.0, 10.5, 9.2 | 0.10 |" in capsys.readouterr().out
