@@ -99,7 +99,7 @@ wait
 if [ "$PHASE2_S" -gt 0 ]; then  # phase 2 on each row's newest checkpoint, then its figures
   for preset in "${rows[@]}"; do
     (
-      timeout --signal=TERM --kill-after=10 $(( PHASE2_S * 6 / 10 )) \
+      timeout --signal=TERM --kill-after=30 $(( PHASE2_S / 2 )) \
         $PY -m mjx_emp.cli phase2 "$RUNS/$preset" "${phase2_args[@]}" >> "$OUT/$preset.log" 2>&1
       timeout --signal=KILL $(( $(left) > 20 ? $(left) - 10 : 10 )) $PY -m mjx_emp.cli eval "$RUNS/$preset" "${eval_args[@]}" \
         --out "$OUT/$preset.eval.json" >> "$OUT/$preset.log" 2>&1
