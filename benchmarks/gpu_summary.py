@@ -15,6 +15,8 @@ from pathlib import Path
 
 import tyro
 
+from mjx_emp.run.store import parse_metrics, read_metrics_text, warn_metrics
+
 
 @dataclasses.dataclass
 class Args:
@@ -43,6 +45,14 @@ def read_settings(path: Path) -> dict:
     return dict(re.findall(r"^([A-Z][A-Z0-9_]*)=(.*)$", path.read_text(), re.M))
 
 
+def read_epochs(path: Path) -> list[dict]:
+    """A session file's per-epoch metric lines (phase 1's or phase 2's), read as the library reads
+    metrics.jsonl: a line a kill cut short is named on stderr and skipped."""
+    valid, problems = parse_metrics(read_metrics_text(path))
+    warn_metrics(path, problems, "skipped")
+    return [entry for _, entry in valid]
+
+
 def check_rows(session: Path) -> dict:
     """Every step the prepared check finished, from each ``device_check*.json`` of the session."""
     rows: dict = {"rollout": [], "train": [], "seeds": [], "memory": [], "not_run": []}
@@ -59,7 +69,7 @@ def check_rows(session: Path) -> dict:
 
 def training_row(path: Path) -> dict:
     """One training row's throughput and where its top goal space stood when the session ended."""
-    epochs = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    epochs = read_epochs(path)
     warm = epochs[1:] or epochs
     top = [e["levels"][-1] for e in epochs]
     largest = max(range(len(top)), key=lambda i: top[i]["volume"])
@@ -80,7 +90,7 @@ def training_row(path: Path) -> dict:
 
 def phase2_row(path: Path) -> dict:
     """One row's phase 2: its epochs' greedy minimum distance and success, and where it ended."""
-    epochs = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    epochs = read_epochs(path)
     return {
         "preset": path.name.removesuffix(".phase2.jsonl"),
         "epochs": len(epochs),
