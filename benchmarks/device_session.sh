@@ -4,8 +4,9 @@
 # the training rows (ROWS, default ant-field-small-k1 and half-cheetah-small-k1) side by side for the
 # time that is left, and, when PHASE2_S > 0, each row's phase 2 and `mjx-emp eval` in the last PHASE2_S
 # seconds. Everything lands in $OUT: versions.txt (the settings, the GPU, the packages), smoke.log,
-# device_check_gpu.json, check.log, and per row <preset>.log, <preset>.metrics.jsonl,
-# <preset>.phase2.jsonl and <preset>.eval.json. See docs/gpu.md.
+# device_check_gpu.json, check.log, and per row <preset>.log, <preset>.metrics.jsonl, <preset>.skills/
+# (its skills export: phase 2 and eval can go on from it on another machine), <preset>.phase2.jsonl
+# and <preset>.eval.json. See docs/gpu.md.
 #
 #   OUT=/tmp/out TOTAL_S=560 CHECK_S=300 bash benchmarks/device_session.sh
 #   OUT=/tmp/out TOTAL_S=540 CHECK_S=0 PHASE2_S=200 ROWS=ant-field-small-k1 \
@@ -88,7 +89,8 @@ if [ "$DRY" = 1 ]; then  # one row: the suite pays for each compile
   phase2_args=(--epochs 1 --num-envs 4 --iterations 1 --grad-steps 1 --eval-rounds 1)
   eval_args=(--episodes 8)
 fi
-budget=$(( $(left) - 15 - PHASE2_S ))
+EXPORT_S=${EXPORT_S:-45}  # per row: its skills export (`mjx-emp export`), small enough to come back in $OUT
+budget=$(( $(left) - 15 - PHASE2_S - EXPORT_S * ${#rows[@]} ))
 echo "training ${rows[*]} side by side for $budget s"
 [ "${#rows[@]}" -gt 1 ] && export XLA_PYTHON_CLIENT_MEM_FRACTION=0.$(( 80 / ${#rows[@]} ))  # one GPU, shared
 for preset in "${rows[@]}"; do
@@ -96,6 +98,10 @@ for preset in "${rows[@]}"; do
     $PY -m mjx_emp.cli train "$preset" --run-dir "$RUNS/$preset" "${train_args[@]}" > "$OUT/$preset.log" 2>&1 &
 done
 wait
+for preset in "${rows[@]}"; do  # the skills without their replays: phase 2 and eval can run on them elsewhere
+  timeout --signal=KILL "$EXPORT_S" $PY -m mjx_emp.cli export "$RUNS/$preset" --out "$OUT/$preset.skills" \
+    >> "$OUT/$preset.log" 2>&1
+done
 if [ "$PHASE2_S" -gt 0 ]; then  # phase 2 on each row's newest checkpoint, then its figures
   for preset in "${rows[@]}"; do
     (

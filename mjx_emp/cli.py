@@ -22,6 +22,7 @@ from mjx_emp.algos.registry import LATENT_SKILLS, algorithm_of, all_presets
 from mjx_emp.checks import check_levels
 from mjx_emp.commands import (
     EvalExperiment,
+    ExportExperiment,
     Phase2Experiment,
     PlotExperiment,
     PresetsExperiment,
@@ -369,6 +370,14 @@ def canonical_args(argv: list[str]) -> list[str]:
     return argv
 
 
+def export(exp: ExportExperiment) -> None:
+    """`mjx-emp export`: write the skills export and say how big it is beside the run's checkpoints."""
+    out, epoch = jobs.export_skills(exp)
+    whole = store.directory_megabytes(Path(exp.run_dir) / store.CHECKPOINT_SUBDIR / str(epoch))
+    print(f"exported the skills of {exp.run_dir} (epoch {epoch}) to {out}: {store.directory_megabytes(out):.1f} MB, "
+          f"against {whole:.1f} MB for the run's checkpoint", flush=True)
+
+
 def list_presets(_: PresetsExperiment) -> None:
     """Print every phase-1 and phase-2 preset with its description."""
     print("phase 1 (mjx-emp train PRESET):")
@@ -416,6 +425,8 @@ COMMANDS: dict[str, tuple[Any, Any, str]] = {
     "phase2": (phase2_commands, functools.partial(jobs.train_phase2, film=film_for_trackers),
                "Phase 2: reach goals of a region with a run's skills as actions (`phase2 RUN_DIR` picks the run's "
                "own preset)."),
+    "export": (lambda: ExportExperiment, export, "Copy a run's skills without its replays into a small run directory "
+               "that phase2, eval, plot and render read (to move trained skills between machines)."),
     "presets": (lambda: PresetsExperiment, list_presets, "List every phase-1 and phase-2 preset."),
     "eval": (lambda: EvalExperiment, evaluate, "Figures of runs' newest checkpoints (goal spaces, success, "
              "coverage; phase 2's distance), mean over runs."),

@@ -102,6 +102,22 @@ class ResumeExperiment:
 
 
 @dataclasses.dataclass(frozen=True)
+class ExportExperiment:
+    """Copy a phase-1 run's skills into a new, small run directory: its config, metrics and one
+    checkpoint without what training refills as it goes (replays, environments mid-episode;
+    the algorithm's ``rebuilt_fields``). Phase 2, eval, plot and render read the export as they
+    read the run; resume refuses it. A checkpoint of a large run is mostly replay: the export
+    is what to move between machines."""
+
+    run_dir: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="RUN_DIR")]
+    """Phase-1 run directory written by `mjx-emp train`."""
+    out: Annotated[str, tyro.conf.arg(metavar="OUT")]
+    """The export's directory; must not hold a run already."""
+    epoch: int = -1
+    """The checkpoint to export; -1: the newest."""
+
+
+@dataclasses.dataclass(frozen=True)
 class PresetsExperiment:
     """List every preset: phase 1 (`mjx-emp train PRESET`) and phase 2 (`mjx-emp phase2 PRESET RUN_DIR`)."""
 
@@ -266,6 +282,14 @@ def resumed_stops(exp: ResumeExperiment) -> dict:
     if exp.max_env_steps is not None:
         stops["max_env_steps"] = exp.max_env_steps or None
     return stops
+
+
+def check_export(exp: ExportExperiment) -> None:
+    """Refuse an export request whose fields cannot work, before anything is read."""
+    if not exp.out:
+        raise ConfigError("out: give the export's directory (--out DIR)")
+    if exp.epoch < -1:
+        raise ConfigError(f"epoch: must be -1 (the newest) or a checkpointed epoch >= 0; got {exp.epoch}")
 
 
 def check_phase2(exp: Phase2Experiment) -> None:

@@ -90,7 +90,7 @@ def test_bad_values_exit_2_with_the_whole_reason(args, message):
     assert message in result.stderr, result.stderr
 
 
-COMMAND_NAMES = ("train", "resume", "phase2", "presets", "eval", "plot", "render", "rollout")
+COMMAND_NAMES = ("train", "resume", "phase2", "export", "presets", "eval", "plot", "render", "rollout")
 
 
 @pytest.mark.parametrize("args", [["--help"], ["trian"]])
@@ -103,7 +103,7 @@ def test_help_and_a_typo_list_every_command(args):
 
 
 @pytest.mark.parametrize("args", [["eval", "--help"], ["plot", "--help"], ["render", "--help"], ["resume", "--help"],
-                                  ["phase2", "point-mass-k1", "--help"]])
+                                  ["phase2", "point-mass-k1", "--help"], ["export", "--help"]])
 def test_run_directories_are_named_run_dir_in_help(args):
     result = cli(*args)
     assert result.returncode == 0, result.stderr

@@ -80,6 +80,10 @@ class Algorithm:
     """The config field that holds a goal box the user sets by hand (half-widths per goal
     dimension), for an algorithm whose top goal space is fixed rather than learned; None
     where there is none. Box sweeps ask for this field instead of an algorithm's name."""
+    rebuilt_fields: tuple[str, ...] = ()
+    """Fields of its train state that training refills as it goes (replays, the environments
+    mid-episode) and that phase 2, eval, plot and render never read: a skills export
+    (`mjx-emp export`) leaves them out, which makes it a fraction of a checkpoint's size."""
 
     def __post_init__(self):
         if self.skills not in SKILL_KINDS:
@@ -100,13 +104,20 @@ def _skill_agent(cfg: Any, shard_axes: tuple[str, ...]) -> Agent:
 
 def _skill_algorithm(name: str, config_type: type) -> Algorithm:
     presets = {preset: entry for preset, entry in SKILL_PRESETS.items() if preset.startswith(f"{name}-")}
-    return Algorithm(name, config_type, check_skill_config, presets, _skill_agent, SKILL_SHARD_SPLIT, LATENT_SKILLS)
+    return Algorithm(name, config_type, check_skill_config, presets, _skill_agent, SKILL_SHARD_SPLIT, LATENT_SKILLS,
+                     rebuilt_fields=SKILL_REBUILT_FIELDS)
 
+
+HE_REBUILT_FIELDS = ("replay", "goal_space_replay", "chain")
+"""HEState's replays and its start chain's environments; its start buffers stay (eval starts there)."""
+SKILL_REBUILT_FIELDS = ("replay", "rollout")
+"""SkillState's replay and its environments mid-skill."""
 
 ALGORITHMS: dict[str, Algorithm] = {
-    "he": Algorithm("he", HEConfig, check_train_config, HE_PRESETS, _he_agent, HE_SHARD_SPLIT, GOAL_SPACES),
+    "he": Algorithm("he", HEConfig, check_train_config, HE_PRESETS, _he_agent, HE_SHARD_SPLIT, GOAL_SPACES,
+                    rebuilt_fields=HE_REBUILT_FIELDS),
     "gcrl": Algorithm("gcrl", GcrlConfig, check_gcrl_config, GCRL_PRESETS, _he_agent, HE_SHARD_SPLIT, GOAL_SPACES,
-                      hand_set_box="goal_half_width"),
+                      hand_set_box="goal_half_width", rebuilt_fields=HE_REBUILT_FIELDS),
     "diayn": _skill_algorithm("diayn", DiaynConfig),
     "hidio": _skill_algorithm("hidio", HidioConfig),
     "dads": _skill_algorithm("dads", DadsConfig),

@@ -179,6 +179,30 @@ def upgrade_episode_links(arrays: dict[str, np.ndarray], expected: list[dict]) -
     return upgraded
 
 
+LEFT_OUT = "left_out"
+"""The digests item's key listing the state fields a checkpoint was written without."""
+
+
+def without_fields(state: Any, fields: tuple[str, ...]) -> Any:
+    """``state`` (a dataclass pytree) with ``fields`` set to None, so that they hold no arrays;
+    the other arrays keep their paths."""
+    return dataclasses.replace(state, **dict.fromkeys(fields)) if fields else state
+
+
+def with_zeros_for(arrays: dict[str, np.ndarray], expected: list[dict], fields: list[str]) -> dict[str, np.ndarray]:
+    """``arrays`` plus zeros for every array of ``expected`` that lies under one of ``fields``
+    (the fields a checkpoint was written without): empty replays, environments never stepped."""
+    if not fields:
+        return arrays
+    heads = tuple(f".{field}{after}" for field in fields for after in (".", "["))
+    filled = dict(arrays)
+    for entry in expected:
+        path = entry["path"]
+        if path not in arrays and (path.startswith(heads) or path in {f".{field}" for field in fields}):
+            filled[path] = np.zeros(entry["shape"], np.dtype(entry["dtype"]))
+    return filled
+
+
 UPGRADES = (upgrade_renamed_fields, upgrade_float_step_counters, upgrade_episode_links)
 """Conversions of arrays saved by earlier versions, applied in order when a checkpoint's
 layout is not today's. Each maps {path: array} to {path: array} given today's layout."""
@@ -283,22 +307,26 @@ class Checkpoints:
         """Epochs with a complete checkpoint, oldest first (none known to a process that is not the lead)."""
         return sorted(self.manager.all_steps()) if self.manager else []
 
-    def save(self, epoch: int, state: Any, config: Any) -> float:
+    def save(self, epoch: int, state: Any, config: Any, leave_out: tuple[str, ...] = ()) -> float:
         """Start writing ``state`` as ``epoch``'s checkpoint; returns the seconds this call blocked.
 
-        The write finishes in the background; ``wait`` blocks until it is on disk. A process
-        that is not the lead writes nothing.
+        ``leave_out`` names state fields not written (a skills export, see
+        :func:`without_fields`); a restore gives them back as zeros and a resume refuses such a
+        checkpoint. The write finishes in the background; ``wait`` blocks until it is on disk. A
+        process that is not the lead writes nothing.
         """
         if self.manager is None:
             return 0.0
         start = time.perf_counter()
-        packed, layout = pack(state), layout_of(state)
+        kept = without_fields(state, leave_out)
+        packed, layout = pack(kept), layout_of(kept)
+        digests = {"algorithm": "crc32", "arrays": array_digests(packed, layout), LEFT_OUT: list(leave_out)}
         with self._write_errors():
             self.manager.save(epoch, args=ocp.args.Composite(
                 state=ocp.args.StandardSave(packed),
                 layout=ocp.args.JsonSave(layout),
                 config=ocp.args.JsonSave(dataclasses.asdict(config)),
-                digests=ocp.args.JsonSave({"algorithm": "crc32", "arrays": array_digests(packed, layout)}),
+                digests=ocp.args.JsonSave(digests),
             ))
         return time.perf_counter() - start
 
@@ -373,6 +401,7 @@ class Checkpoints:
             raise CheckpointError(f"{step_dir / 'state'}: unreadable ({type(err).__name__}: {reason})") from err
         arrays = arrays_by_path(restored.state, saved_layout)
         self._verify(epoch, arrays)
+        arrays = with_zeros_for(arrays, layout, self.left_out(epoch))
         if saved_layout != layout:  # written by an earlier version
             for upgrade in UPGRADES:
                 arrays = upgrade(arrays, layout)
@@ -386,16 +415,27 @@ class Checkpoints:
                                   "must keep the number it was written under (was it renamed?)")
         return state
 
+    def _digests(self, epoch: int) -> dict | None:
+        """The digests item written with ``epoch``'s checkpoint (None for checkpoints older than digests)."""
+        step_dir = self.step_dir(epoch)
+        if not (step_dir / "digests").exists():
+            return None
+        try:
+            return self.manager.restore(epoch, args=ocp.args.Composite(digests=ocp.args.JsonRestore())).digests
+        except Exception as err:  # orbax and JSON raise many types; all mean "unreadable"
+            raise CheckpointError(f"{step_dir / 'digests'}: unreadable ({type(err).__name__}: {err})") from err
+
+    def left_out(self, epoch: int) -> list[str]:
+        """The state fields ``epoch``'s checkpoint was written without (empty for a whole state)."""
+        return list((self._digests(epoch) or {}).get(LEFT_OUT, []))
+
     def _verify(self, epoch: int, arrays: dict[str, np.ndarray]) -> None:
         """Check every restored array against the digests written with it (checkpoints written
         before digests existed have none and are not checked)."""
         step_dir = self.step_dir(epoch)
-        if not (step_dir / "digests").exists():
+        written = self._digests(epoch)
+        if written is None:
             return
-        try:
-            written = self.manager.restore(epoch, args=ocp.args.Composite(digests=ocp.args.JsonRestore())).digests
-        except Exception as err:  # orbax and JSON raise many types; all mean "unreadable"
-            raise CheckpointError(f"{step_dir / 'digests'}: unreadable ({type(err).__name__}: {err})") from err
         for path, expected in written["arrays"].items():
             found = digest(arrays[path]) if path in arrays else None
             if found != expected:

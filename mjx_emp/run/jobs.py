@@ -17,10 +17,12 @@ from mjx_emp.algos.registry import (
     make_agent,
 )
 from mjx_emp.commands import (
+    ExportExperiment,
     Phase2Experiment,
     ResumeExperiment,
     Tracking,
     TrainExperiment,
+    check_export,
     check_phase2,
     check_resume,
     check_train,
@@ -166,6 +168,10 @@ def _restore(run_dir: Path, trainer, template, fallback: bool = False, epoch: in
     from mjx_emp.run.checkpoint import Checkpoints
 
     with Checkpoints(run_dir, read_only=not writer) as checkpoints:
+        if writer and checkpoints.epochs() and checkpoints.left_out(checkpoints.epochs()[-1]):
+            raise ConfigError(f"resume: {run_dir} is a skills export (its checkpoint holds no "
+                              f"{', '.join(checkpoints.left_out(checkpoints.epochs()[-1]))}); phase 2, eval, plot "
+                              "and render read it, training cannot continue from it")
         if epoch is None:
             return checkpoints.restore_latest(template, trainer.cfg, fallback)
         if epoch not in checkpoints.epochs():
@@ -197,6 +203,28 @@ def load_run(run_dir: Path, fallback: bool = False, stops: dict | None = None, f
     trainer = make_agent(cfg)
     epoch, state = _restore(Path(run_dir), trainer, jax.eval_shape(trainer.init), fallback, epoch)
     return trainer, epoch, state
+
+
+def export_skills(exp: ExportExperiment) -> tuple[Path, int]:
+    """Write RUN_DIR's skills (see :class:`ExportExperiment`) to OUT; returns OUT and the epoch exported."""
+    import shutil
+
+    from mjx_emp.run.checkpoint import Checkpoints
+
+    check_export(exp)
+    if (Path(exp.run_dir) / SKILLS_FILE).exists():
+        raise ConfigError(f"run_dir: {exp.run_dir} is a phase-2 directory; export the phase-1 run it was trained on")
+    agent, epoch, state = load_run(Path(exp.run_dir), epoch=None if exp.epoch < 0 else exp.epoch)
+    out = fresh_run_dir(exp.out, "out", "a run", "mjx-emp train")
+    with run_lock(out, "out"):
+        write_config(out, agent.cfg)
+        metrics = Path(exp.run_dir) / METRICS_FILE
+        if metrics.exists():
+            shutil.copyfile(metrics, out / METRICS_FILE)
+            keep_metrics_through(out / METRICS_FILE, epoch)
+        with Checkpoints(out, keep=1) as checkpoints:
+            checkpoints.save(epoch, state, agent.cfg, leave_out=algorithm_of(agent.cfg).rebuilt_fields)
+    return out, epoch
 
 
 def load_program(run_dir: Path, fallback: bool = False, stops: dict | None = None, field: str = "resume",

@@ -267,6 +267,11 @@ def fresh_run_dir(path: str, field: str, what: str, command: str) -> Path:
     return run_dir
 
 
+def directory_megabytes(path: Path) -> float:
+    """The size of the files under ``path`` in MB (10^6 bytes); 0 for a missing path."""
+    return sum(f.stat().st_size for f in Path(path).rglob("*") if f.is_file()) / 1e6
+
+
 def config_json(cfg) -> dict:
     """config.json's form of ``cfg``: an algorithm's config records its algorithm; a phase-2
     config is its fields alone."""
