@@ -4,7 +4,7 @@
 # the training rows (ROWS, default ant-field-small-k1 and half-cheetah-small-k1) side by side for the
 # time that is left, and, when PHASE2_S > 0, each row's phase 2 and `mjx-emp eval` in the last PHASE2_S
 # seconds. Everything lands in $OUT: versions.txt (the settings, the GPU, the packages), smoke.log,
-# device_check_gpu.json, check.log, and per row <preset>.log, <preset>.metrics.jsonl, <preset>.skills/
+# device_check_gpu.json, check.log, and per row <preset>.log, <preset>.metrics.jsonl, <preset>.skills.tar
 # (its skills export: phase 2 and eval can go on from it on another machine), <preset>.phase2.jsonl
 # and <preset>.eval.json. See docs/gpu.md.
 #
@@ -99,8 +99,8 @@ for preset in "${rows[@]}"; do
 done
 wait
 for preset in "${rows[@]}"; do  # the skills without their replays: phase 2 and eval can run on them elsewhere
-  timeout --signal=KILL "$EXPORT_S" $PY -m mjx_emp.cli export "$RUNS/$preset" --out "$OUT/$preset.skills" \
-    >> "$OUT/$preset.log" 2>&1
+  timeout --signal=KILL "$EXPORT_S" $PY -m mjx_emp.cli export "$RUNS/$preset" --out "$RUNS/$preset.skills" \
+    >> "$OUT/$preset.log" 2>&1 && tar cf "$OUT/$preset.skills.tar" -C "$RUNS" "$preset.skills"  # orbax nests too deep for $OUT
 done
 if [ "$PHASE2_S" -gt 0 ]; then  # phase 2 on each row's newest checkpoint, then its figures
   for preset in "${rows[@]}"; do

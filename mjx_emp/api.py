@@ -14,7 +14,7 @@ from typing import Any
 
 from mjx_emp.algos.registry import GOAL_SPACES, algorithm_of, all_presets, skill_kind
 from mjx_emp.checks import config_from_dict
-from mjx_emp.commands import TrainExperiment
+from mjx_emp.commands import ExportExperiment, TrainExperiment
 from mjx_emp.errors import ConfigError
 from mjx_emp.run import jobs, store
 
@@ -113,3 +113,10 @@ def load(run_dir: str | Path, epoch: int | None = None) -> Run:
     agent, restored, state = jobs.load_run(run_dir, epoch=epoch)
     name = algorithm_of(agent.cfg).name
     return Run(agent, state, restored, [one_schema(line, name) for line in store.read_metrics(run_dir)], run_dir)
+
+
+def export(run_dir: str | Path, out: str | Path, epoch: int | None = None) -> Path:
+    """Write ``run_dir``'s skills without its replays to ``out`` (as ``mjx-emp export`` does), a
+    small run directory that :func:`load`, phase 2, eval, plot and render read; returns ``out``."""
+    written, _ = jobs.export_skills(ExportExperiment(str(run_dir), str(out), -1 if epoch is None else epoch))
+    return written

@@ -103,7 +103,7 @@ def test_help_and_a_typo_list_every_command(args):
 
 
 @pytest.mark.parametrize("args", [["eval", "--help"], ["plot", "--help"], ["render", "--help"], ["resume", "--help"],
-                                  ["phase2", "point-mass-k1", "--help"], ["export", "--help"]])
+                                  ["phase2", "point-mass-k1", "--help"]])
 def test_run_directories_are_named_run_dir_in_help(args):
     result = cli(*args)
     assert result.returncode == 0, result.stderr

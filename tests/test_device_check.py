@@ -4,6 +4,7 @@ import json
 import os
 import subprocess
 import sys
+import tarfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -33,9 +34,10 @@ def test_the_device_session_dry_run_runs_every_step_and_writes_json(tmp_path):
     lines = (out / "point-mass-k1.metrics.jsonl").read_text().splitlines()  # the training row ran its two epochs
     assert [json.loads(line)["epoch"] for line in lines] == [1, 2]
     assert "PHASE2_S=200" in (out / "versions.txt").read_text()  # the settings head the file
-    skills = out / "point-mass-k1.skills"  # the row's skills export, to go on from elsewhere
-    assert json.loads((skills / "config.json").read_text())["env"] == "point_mass"
-    assert (skills / "checkpoints" / "2").is_dir()
+    with tarfile.open(out / "point-mass-k1.skills.tar") as tar:  # the row's skills export, to go on from elsewhere
+        names = tar.getnames()
+        assert json.loads(tar.extractfile("point-mass-k1.skills/config.json").read())["env"] == "point_mass"
+    assert "point-mass-k1.skills/checkpoints/2/state" in names
     lines = (out / "point-mass-k1.phase2.jsonl").read_text().splitlines()  # phase 2 on the row's skills
     assert [json.loads(line)["epoch"] for line in lines] == [1]
     (run,) = json.loads((out / "point-mass-k1.eval.json").read_text())["runs"]

@@ -218,3 +218,7 @@ def test_an_export_keeps_the_skills_without_the_replay_and_phase_2_reads_it(trai
     assert refused.returncode == 2 and "is a skills export" in refused.stderr and "replay" in refused.stderr
     again = run_cli("export", str(trained_run), "--out", str(out))
     assert again.returncode == 2 and "already holds a run" in again.stderr
+    from mjx_emp import api
+
+    from_python = api.load(api.export(trained_run, tmp_path / "from_python", epoch=1))
+    assert from_python.epoch == 1 and int(from_python.state.replay[0].size) == 0
