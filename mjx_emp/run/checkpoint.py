@@ -183,6 +183,27 @@ LEFT_OUT = "left_out"
 """The digests item's key listing the state fields a checkpoint was written without."""
 
 
+def left_out_of(digests: dict | None) -> list[str]:
+    """The state fields a checkpoint's digests item says were not written (empty for a whole state,
+    or for a checkpoint older than digests)."""
+    return list((digests or {}).get(LEFT_OUT, []))
+
+
+def verify_digests(step_dir: Path, arrays: dict[str, np.ndarray], written: dict | None) -> None:
+    """Check every restored array of ``step_dir`` against the digests written with it (checkpoints
+    written before digests existed have none and are not checked)."""
+    if written is None:
+        return
+    for path, expected in written["arrays"].items():
+        found = digest(arrays[path]) if path in arrays else None
+        if found != expected:
+            raise CheckpointError(
+                f"{step_dir}: array {path} does not match the checksum written with it (crc32 "
+                f"{found if found is None else format(found, '08x')}, written {expected:08x}): the checkpoint "
+                f"changed on disk; its bytes lie in {', '.join(data_files(step_dir / 'state'))}"
+            )
+
+
 def without_fields(state: Any, fields: tuple[str, ...]) -> Any:
     """``state`` (a dataclass pytree) with ``fields`` set to None, so that they hold no arrays;
     the other arrays keep their paths."""
@@ -400,8 +421,9 @@ class Checkpoints:
             reason = str(err).split(" [tensorstore_spec=")[0]  # drop tensorstore's long spec dump
             raise CheckpointError(f"{step_dir / 'state'}: unreadable ({type(err).__name__}: {reason})") from err
         arrays = arrays_by_path(restored.state, saved_layout)
-        self._verify(epoch, arrays)
-        arrays = with_zeros_for(arrays, layout, self.left_out(epoch))
+        written = self._digests(epoch)
+        verify_digests(step_dir, arrays, written)
+        arrays = with_zeros_for(arrays, layout, left_out_of(written))
         if saved_layout != layout:  # written by an earlier version
             for upgrade in UPGRADES:
                 arrays = upgrade(arrays, layout)
@@ -427,23 +449,7 @@ class Checkpoints:
 
     def left_out(self, epoch: int) -> list[str]:
         """The state fields ``epoch``'s checkpoint was written without (empty for a whole state)."""
-        return list((self._digests(epoch) or {}).get(LEFT_OUT, []))
-
-    def _verify(self, epoch: int, arrays: dict[str, np.ndarray]) -> None:
-        """Check every restored array against the digests written with it (checkpoints written
-        before digests existed have none and are not checked)."""
-        step_dir = self.step_dir(epoch)
-        written = self._digests(epoch)
-        if written is None:
-            return
-        for path, expected in written["arrays"].items():
-            found = digest(arrays[path]) if path in arrays else None
-            if found != expected:
-                raise CheckpointError(
-                    f"{step_dir}: array {path} does not match the checksum written with it (crc32 "
-                    f"{found if found is None else format(found, '08x')}, written {expected:08x}): the checkpoint "
-                    f"changed on disk; its bytes lie in {', '.join(data_files(step_dir / 'state'))}"
-                )
+        return left_out_of(self._digests(epoch))
 
     def restore_latest(self, template: Any, expected: Any, fallback: bool = False) -> tuple[int, Any]:
         """The newest checkpoint that restores, as ``(epoch, state)``.

@@ -168,14 +168,16 @@ def _restore(run_dir: Path, trainer, template, fallback: bool = False, epoch: in
     from mjx_emp.run.checkpoint import Checkpoints
 
     with Checkpoints(run_dir, read_only=not writer) as checkpoints:
-        if writer and checkpoints.epochs() and checkpoints.left_out(checkpoints.epochs()[-1]):
+        epochs = checkpoints.epochs()
+        left_out = checkpoints.left_out(epochs[-1]) if writer and epochs else []
+        if left_out:
             raise ConfigError(f"resume: {run_dir} is a skills export (its checkpoint holds no "
-                              f"{', '.join(checkpoints.left_out(checkpoints.epochs()[-1]))}); phase 2, eval, plot "
-                              "and render read it, training cannot continue from it")
+                              f"{', '.join(left_out)}); phase 2, eval, plot and render read it, "
+                              "training cannot continue from it")
         if epoch is None:
             return checkpoints.restore_latest(template, trainer.cfg, fallback)
-        if epoch not in checkpoints.epochs():
-            raise ConfigError(f"phase1_epoch: {run_dir} has checkpoints of epochs {checkpoints.epochs()}; got {epoch}")
+        if epoch not in epochs:
+            raise ConfigError(f"phase1_epoch: {run_dir} has checkpoints of epochs {epochs}; got {epoch}")
         return epoch, checkpoints.restore(epoch, template, trainer.cfg)
 
 
@@ -215,7 +217,7 @@ def export_skills(exp: ExportExperiment) -> tuple[Path, int]:
     if (Path(exp.run_dir) / SKILLS_FILE).exists():
         raise ConfigError(f"run_dir: {exp.run_dir} is a phase-2 directory; export the phase-1 run it was trained on")
     agent, epoch, state = load_run(Path(exp.run_dir), epoch=None if exp.epoch < 0 else exp.epoch)
-    out = fresh_run_dir(exp.out, "out", "a run", "mjx-emp train")
+    out = fresh_run_dir(exp.out, "out", "a skills export", None)
     with run_lock(out, "out"):
         write_config(out, agent.cfg)
         metrics = Path(exp.run_dir) / METRICS_FILE

@@ -250,17 +250,20 @@ def run_lock(run_dir: Path, field: str) -> Iterator[None]:
         handle.close()
 
 
-def fresh_run_dir(path: str, field: str, what: str, command: str) -> Path:
+def fresh_run_dir(path: str, field: str, what: str, command: str | None) -> Path:
     """Create the directory of ``what`` (a new run, to be made by ``command``); one that already
     holds a run (:func:`holds_a_run`) is refused, naming ``field`` and what it holds; one a kill
-    left before its first checkpoint is reused."""
+    left before its first checkpoint is reused. ``command`` None: what is made there is written
+    once (an export), so the refusal offers no way to continue it."""
     run_dir = prepare_run_dir(path, field)
     held = "a phase-2 run" if (run_dir / SKILLS_FILE).exists() else "a run"
     if holds_a_run(run_dir):
+        another = f"choose another --{field.replace('_', '-')}"
+        if command is None:
+            raise ConfigError(f"{field}: {str(run_dir)!r} already holds {held}; {another}")
         resume = f"{command} --resume" if held == what else "mjx-emp resume"
         raise ConfigError(
-            f"{field}: {str(run_dir)!r} already holds {held}; continue it with "
-            f"`{resume} {run_dir}` or choose another --{field.replace('_', '-')}"
+            f"{field}: {str(run_dir)!r} already holds {held}; continue it with `{resume} {run_dir}` or {another}"
         )
     if (run_dir / CONFIG_FILE).exists() or (run_dir / CHECKPOINT_SUBDIR).exists():
         print(f"note: {run_dir} holds {held} stopped before its first checkpoint; it is started anew", flush=True)
