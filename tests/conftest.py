@@ -1,7 +1,8 @@
-"""Test-session set-up: one persistent XLA compilation cache shared by the CLI subprocesses.
+"""Test-session set-up: one persistent XLA compilation cache shared by the test processes and
+their CLI subprocesses.
 
-Identical programs compiled by several CLI subprocesses then compile once per session;
-what they compute is unchanged. The cache lives in a temporary
+Identical programs compiled by both pytest workers, or by a test and a CLI subprocess, then
+compile once per session; what they compute is unchanged. The cache lives in a temporary
 directory, so every session starts cold, as CI does.
 """
 
@@ -13,19 +14,24 @@ import sys
 import tempfile
 from pathlib import Path
 
-FAST_CODEGEN = "--xla_backend_optimization_level=0"
-"""XLA's LLVM back end without its optimisation passes, for this process and every subprocess.
+FAST_CODEGEN = ("--xla_backend_optimization_level=0", "--xla_cpu_use_fusion_emitters=false")
+"""XLA's CPU back end set to compile fast, for this process and every subprocess.
 
 Almost all of the suite's time is XLA compiling small programs that then run for
-milliseconds; unoptimised machine code compiles in about two thirds of the time (one
-training test: 48 s of CPU instead of 70 s). What the programs compute is unchanged: the
-passes skipped are LLVM's, after XLA has fixed every operation and its order."""
-if FAST_CODEGEN not in os.environ.get("XLA_FLAGS", ""):
-    os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {FAST_CODEGEN}".strip()
+milliseconds. LLVM without its optimisation passes compiles in about two thirds of the
+time (one training test: 48 s of CPU instead of 70 s); XLA's older fusion code generator in
+place of its MLIR fusion emitters takes off about another third of the back end's time (the
+tiny trainer's epoch: 20 s instead of 29 s, two jobs beside it). Results may differ from the
+default flags' in a float's last bits; every test compares programs compiled under these same
+flags, in this process and in its subprocesses, which inherit them."""
+for flag in FAST_CODEGEN:
+    if flag.split("=")[0] not in os.environ.get("XLA_FLAGS", ""):
+        os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {flag}".strip()
 
-_CACHE = tempfile.mkdtemp(prefix="mjx-emp-xla-cache-")
-atexit.register(shutil.rmtree, _CACHE, ignore_errors=True)
-os.environ["JAX_COMPILATION_CACHE_DIR"] = _CACHE
+if "MJX_EMP_TEST_CACHE" not in os.environ:  # the first pytest process; its workers inherit the directory
+    os.environ["MJX_EMP_TEST_CACHE"] = tempfile.mkdtemp(prefix="mjx-emp-xla-cache-")
+    atexit.register(shutil.rmtree, os.environ["MJX_EMP_TEST_CACHE"], ignore_errors=True)
+os.environ["JAX_COMPILATION_CACHE_DIR"] = os.environ["MJX_EMP_TEST_CACHE"]
 os.environ["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] = "1"
 
 import jax  # noqa: E402 (after the environment it reads)
@@ -47,9 +53,6 @@ def pytest_collection_modifyitems(config, items):
     for item in items:
         if "slow" in item.keywords:
             item.add_marker(skip)
-
-# The CLI subprocesses share the cache; this process keeps its programs in memory only.
-jax.config.update("jax_enable_compilation_cache", False)
 
 
 MAPPINGS_BEFORE_CLEARING = 20_000

@@ -7,9 +7,12 @@ import sys
 import tarfile
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
+@pytest.mark.slow  # four minutes of CPU in six processes; run it before a GPU lease (docs/gpu.md)
 def test_the_device_session_dry_run_runs_every_step_and_writes_json(tmp_path):
     out = tmp_path / "out"
     env = {**os.environ, "DRY": "1", "WHEELS": "none", "PYTHON": sys.executable, "OUT": str(out),
