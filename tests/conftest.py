@@ -18,12 +18,11 @@ FAST_CODEGEN = ("--xla_backend_optimization_level=0", "--xla_cpu_use_fusion_emit
 """XLA's CPU back end set to compile fast, for this process and every subprocess.
 
 Almost all of the suite's time is XLA compiling small programs that then run for
-milliseconds. LLVM without its optimisation passes compiles in about two thirds of the
-time (one training test: 48 s of CPU instead of 70 s); XLA's older fusion code generator in
-place of its MLIR fusion emitters takes off about another third of the back end's time (the
-tiny trainer's epoch: 20 s instead of 29 s, two jobs beside it). Results may differ from the
-default flags' in a float's last bits; every test compares programs compiled under these same
-flags, in this process and in its subprocesses, which inherit them."""
+milliseconds. LLVM without its optimisation passes, and XLA's older fusion code generator in
+place of its MLIR fusion emitters, compile them in less than half the time
+(``benchmarks/compile_flags.py``). Results may differ from the default flags' in a float's
+last bits; every test compares programs compiled under these same flags, in this process and
+in its subprocesses, which inherit them."""
 for flag in FAST_CODEGEN:
     if flag.split("=")[0] not in os.environ.get("XLA_FLAGS", ""):
         os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {flag}".strip()
