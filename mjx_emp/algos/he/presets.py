@@ -97,6 +97,9 @@ ANT_FIELD_CPU_K2_4ITER_LN_TILT = dataclasses.replace(ANT_FIELD_CPU_K2_4ITER_LN, 
 # level 0 gets over half the one-level learner's iterations, not a quarter (docs/presets.md#repeating-level-0).
 ANT_FIELD_CPU_K2_4ITER_LN_REP4 = dataclasses.replace(ANT_FIELD_CPU_K2_4ITER_LN, level_repeats=(4, 1))
 HALF_CHEETAH_CPU_K2_REP4 = dataclasses.replace(HALF_CHEETAH_CPU_K2, level_repeats=(4, 1))
+# The one-level Half Cheetah with Table 1's sigma_gs (2.0) instead of 0.5: its box is reached on every goal
+# but grows too slowly for phase 2's 95 m (docs/presets.md#the-half-cheetahs-box-with-table-1s-sigma_gs).
+HALF_CHEETAH_CPU_K1_GS2 = dataclasses.replace(HALF_CHEETAH_CPU_K1, sigma_gs=(2.0,))
 
 # The cages at CPU scale: the best CPU learner of each robot's field, in its Table-1 cage
 # (docs/presets.md#the-cages-on-a-cpu).
@@ -136,6 +139,8 @@ PRESETS: dict[str, tuple[str, HEConfig]] = {
                                        "per epoch (level_repeats)", ANT_FIELD_CPU_K2_4ITER_LN_REP4),
     "half-cheetah-cpu-k2-rep4": ("CPU: half-cheetah-cpu-k2 with level 0's iterations run four times per epoch "
                                  "(level_repeats)", HALF_CHEETAH_CPU_K2_REP4),
+    "half-cheetah-cpu-k1-gs2": ("CPU: half-cheetah-cpu-k1 with Table 1's sigma_gs of 2.0 instead of 0.5 "
+                                "(a box that grows faster)", HALF_CHEETAH_CPU_K1_GS2),
     "half-cheetah-cpu-k1-4iter": ("CPU: half-cheetah-cpu-k1 with 4 solver iterations (accurate contacts)",
                                   HALF_CHEETAH_CPU_K1_4ITER),
     "ant-field-cpu-k1-her-ln": ("CPU: ant-field-cpu-k1 with hindsight goals and a LayerNorm critic, 120 epochs",
