@@ -20,6 +20,8 @@ from pathlib import Path
 
 import tyro
 
+from mjx_emp.tables import markdown_table
+
 FLAG_SETS = {
     "default": "",
     "llvm-O0": "--xla_backend_optimization_level=0",
@@ -97,10 +99,11 @@ def main(args: Args) -> None:
             row[key + "_each"] = values
         rows.append(row)
     baseline = rows[0]["backend_compile_s"]
-    print("| flags | first epoch (s) | back-end compile (s) | ratio to the first row |\n|---|---|---|---|")
-    for row in rows:
-        print(f"| {row['flags']} | {row['total_s']:.1f} | {row['backend_compile_s']:.1f} | "
-              f"{row['backend_compile_s'] / baseline:.2f} |")
+    print(markdown_table(
+        ["flags", "first epoch (s)", "back-end compile (s)", "ratio to the first row"],
+        [[row["flags"], f"{row['total_s']:.1f}", f"{row['backend_compile_s']:.1f}",
+          f"{row['backend_compile_s'] / baseline:.2f}"] for row in rows],
+    ))
     out = Path(args.out or f"benchmarks/results/compile_flags_{backend}.json")
     out.write_text(json.dumps({"backend": backend, "beside": args.beside, "rows": rows}, indent=1) + "\n")
     print("wrote", out)
