@@ -133,7 +133,11 @@ def test_up_axis_reads_the_tilt_from_an_observation_and_decides_upright():
     batch = jnp.stack([turned(a) for a in angles])
     np.testing.assert_allclose(env.up_axis_z(batch), np.cos(angles), atol=1e-6)  # over a batch too
     cheetah = make_env("half_cheetah_field")
-    np.testing.assert_array_equal(cheetah.up_axis_z(jnp.zeros((3, cheetah.obs_size))), np.ones(3))
+    pitched = jnp.zeros((5, cheetah.obs_size)).at[:, 2].set(jnp.asarray(angles))  # rooty, the torso's pitch
+    np.testing.assert_allclose(cheetah.up_axis_z(pitched), np.cos(angles), atol=1e-6)
+    assert [bool(cheetah.upright(cheetah.template.replace(qpos=x[: cheetah.mj_model.nq]))) for x in pitched] == [True] * 5
+    point = make_env("point_mass")
+    np.testing.assert_array_equal(point.up_axis_z(jnp.zeros((3, point.obs_size))), np.ones(3))
 
 
 def test_a_half_cheetah_on_its_back_keeps_running():

@@ -270,7 +270,7 @@ def test_restore_round_trips_observations():
         (dict(learn_from_resets=True, reset_outcome="first"), "reset_outcome: 'first' is unknown"),
         (dict(reset_outcome="start"), "reset_outcome: 'start' needs learn_from_resets"),
         (dict(tilt_cost=-1.0), "tilt_cost: must be >= 0"),
-        (dict(tilt_cost=1.0), "tilt_cost: 'point_mass' has no free torso to tilt"),
+        (dict(tilt_cost=1.0), "tilt_cost: 'point_mass' has no torso to tilt"),
         (dict(level_repeats=(2,)), "level_repeats: empty .* or one entry >= 1 per level"),
         (dict(level_repeats=(2, 0)), "level_repeats"),
     ],
@@ -522,6 +522,15 @@ def test_tilt_cost_lowers_level_zero_rewards_by_the_torso_tilt():
     agent = HEAgent(dataclasses.replace(TINY, env="ant_field", gamma=gamma, sigma_gc=(sigma, sigma), tilt_cost=cost))
     np.testing.assert_allclose(agent.gc_backup(0, rows, slots, rows).reward, paid, rtol=1e-6)
     np.testing.assert_allclose(agent.gc_backup(1, rows, slots, rows).reward, plain, rtol=1e-6)
+    # The Half Cheetah's torso tilts by its pitch hinge: on its back it pays twice the cost.
+    cheetah = make_env("half_cheetah_field")
+    start = cheetah.observe(cheetah.reset_to(jax.random.key(0), jnp.array([0.0])))
+    pitched = jnp.stack([start.at[2].set(a) for a in angles])
+    goal = jnp.array([5.0])
+    rows = GoalTransition(obs=pitched[:2], goal=jnp.broadcast_to(goal, (2, 1)), action=jnp.zeros((2, cheetah.action_size)),
+                          next_obs=pitched[1:], reached=jnp.zeros(2, bool), successor=jnp.array([1, 2], jnp.int32))
+    np.testing.assert_allclose(one_step_backup(rows, cheetah, sigma, gamma, tilt_cost=cost).reward,
+                               one_step_backup(rows, cheetah, sigma, gamma).reward - cost * np.array([1.0, 2.0]), rtol=1e-5)
 
 
 def test_phase_one_keeps_what_a_reset_cut_short_only_when_asked():

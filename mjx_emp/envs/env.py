@@ -80,6 +80,8 @@ class Env:
     goal_qpos: tuple[int, ...]
     cage: Cage | None
     torso_quat: int | None = None
+    torso_pitch: int | None = None
+    """Where a planar torso's pitch hinge is in qpos (see :attr:`DomainSpec.torso_pitch`)."""
     heading_frame: bool = False
     """Express what networks see in the torso's heading frame (robots with a free torso):
     the yaw is taken out of the torso quaternion and the world-frame torso velocity and
@@ -138,15 +140,21 @@ class Env:
         return EnvState(data=data, key=key, **_no_resets())
 
     def upright(self, data: mjx.Data) -> jax.Array:
-        """False once the torso's up axis points below the horizon (tilted past 90 degrees).
+        """False once a free torso's up axis points below the horizon (tilted past 90 degrees).
 
-        Always True for robots without a free torso (point mass, Half Cheetah).
+        Always True for robots without a free torso (point mass, Half Cheetah): a planar
+        robot on its back is never reset.
         """
+        if self.torso_quat is None:
+            return jnp.ones((), bool)
         return self.up_axis_z(data.qpos) > 0.0
 
     def up_axis_z(self, obs: jax.Array) -> jax.Array:
         """World z of the torso's up axis, read from an observation or qpos (its first entries):
-        1 upright, 0 on its side, -1 upside down; 1 for robots without a free torso."""
+        1 upright, 0 on its side, -1 upside down; from the free torso's quaternion (Ant) or the
+        cosine of the planar torso's pitch (Half Cheetah); 1 for the point mass."""
+        if self.torso_pitch is not None:
+            return jnp.cos(obs[..., self.torso_pitch])
         if self.torso_quat is None:
             return jnp.ones(jnp.shape(obs)[:-1])
         w, x, y, z = (obs[..., self.torso_quat + i] for i in range(4))
@@ -391,6 +399,7 @@ def make_env(name: str, heading_frame: bool = False, solver_iterations: int = 0,
         goal_qpos=spec.goal_qpos,
         cage=_make_cage(m, spec) if spec.caged else None,
         torso_quat=spec.torso_quat,
+        torso_pitch=spec.torso_pitch,
         heading_frame=heading_frame,
     )
     if spec.standardize:

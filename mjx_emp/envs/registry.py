@@ -21,6 +21,9 @@ class DomainSpec:
     caged: bool = False
     torso_quat: int | None = None
     """Where the free torso's quaternion starts in qpos, for robots reset when upside down."""
+    torso_pitch: int | None = None
+    """Where a planar robot's torso pitch hinge is in qpos (the Half Cheetah's rooty): its up
+    axis is tilted by that angle. Such a robot is never reset when upside down."""
     standardize: bool = False
     """Standardise network features by a random-action rollout's statistics (see
     :func:`random_action_feature_stats`)."""
@@ -35,15 +38,18 @@ class DomainSpec:
 # flipped Half Cheetah can still run along x, its goal space, so it is never reset (as in
 # Gym and Brax).
 ANT_TORSO_QUAT = 3
+HALF_CHEETAH_PITCH = 2
 DOMAINS: dict[str, DomainSpec] = {
     "point_mass": DomainSpec("point_mass.xml", action_repeat=5, goal_qpos=(0, 1)),
     "ant_field": DomainSpec("ant_field.xml", action_repeat=10, goal_qpos=(0, 1), torso_quat=ANT_TORSO_QUAT,
                             standardize=True),
     "ant_cage": DomainSpec("ant_cage.xml", action_repeat=10, goal_qpos=(0, 1), caged=True,
                            torso_quat=ANT_TORSO_QUAT, standardize=True),
-    "half_cheetah_field": DomainSpec("half_cheetah_field.xml", action_repeat=10, goal_qpos=(0,), standardize=True),
+    "half_cheetah_field": DomainSpec("half_cheetah_field.xml", action_repeat=10, goal_qpos=(0,),
+                                     torso_pitch=HALF_CHEETAH_PITCH, standardize=True),
     "half_cheetah_cage": DomainSpec(
-        "half_cheetah_cage.xml", action_repeat=10, goal_qpos=(0,), caged=True, standardize=True
+        "half_cheetah_cage.xml", action_repeat=10, goal_qpos=(0,), caged=True, torso_pitch=HALF_CHEETAH_PITCH,
+        standardize=True,
     ),
 }
 DOMAIN_NAMES: tuple[str, ...] = tuple(DOMAINS)
@@ -65,3 +71,9 @@ def check_physics(solver_iterations: int, integrator: str, impl: str = "jax") ->
         raise ConfigError(f"integrator: {integrator!r} is unknown; allowed values: {list(INTEGRATORS)}")
     if solver_iterations < 0:
         raise ConfigError(f"solver_iterations: must be >= 0 (0 keeps the model's); got {solver_iterations}")
+
+
+def tiltable(spec: DomainSpec) -> bool:
+    """Whether a domain's torso can tilt (a free torso or a planar pitch hinge), so a level can
+    pay for tilting it (``tilt_cost``)."""
+    return spec.torso_quat is not None or spec.torso_pitch is not None

@@ -8,7 +8,7 @@ from __future__ import annotations
 import dataclasses
 
 from mjx_emp.checks import check_capacity, check_counts, check_finite, check_learning, check_levels, check_shards
-from mjx_emp.envs.registry import DOMAINS, check_physics
+from mjx_emp.envs.registry import DOMAINS, check_physics, tiltable
 from mjx_emp.errors import ConfigError
 
 RESET_OUTCOMES = ("last", "start")
@@ -140,7 +140,8 @@ class HEConfig:
     tilt_cost: float = 0.0
     """Subtracted from level 0's per-step reward times the torso's tilt after the action
     (1 - z of its up axis: 0 upright, 1 on its side, 2 upside down), so the level that moves
-    the joints learns to keep the robot upright; robots with a free torso only (the Ant). 0 is
+    the joints learns to keep the robot upright; robots with a torso that tilts only (the Ant,
+    the Half Cheetah). 0 is
     the paper's reward, log N(goal; h(s'), sigma) alone."""
     critics: int = 1
     """Goal-conditioned critics per level. 1 is the paper's DDPG; 2 is TD3's clipped
@@ -190,9 +191,9 @@ def check_train_config(cfg: HEConfig, positive: tuple[str, ...] = _POSITIVE) -> 
                           f"got {cfg.level_repeats}")
     if not cfg.tilt_cost >= 0.0:
         raise ConfigError(f"tilt_cost: must be >= 0; got {cfg.tilt_cost}")
-    if cfg.tilt_cost > 0.0 and DOMAINS[cfg.env].torso_quat is None:
-        allowed = sorted(name for name, spec in DOMAINS.items() if spec.torso_quat is not None)
-        raise ConfigError(f"tilt_cost: {cfg.env!r} has no free torso to tilt; allowed only with env in {allowed}")
+    if cfg.tilt_cost > 0.0 and not tiltable(DOMAINS[cfg.env]):
+        allowed = sorted(name for name, spec in DOMAINS.items() if tiltable(spec))
+        raise ConfigError(f"tilt_cost: {cfg.env!r} has no torso to tilt; allowed only with env in {allowed}")
     check_physics(cfg.solver_iterations, cfg.integrator, cfg.impl)
     check_levels(cfg.n, cfg.eps)
     check_shards(cfg, SHARD_SPLIT)
