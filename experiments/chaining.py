@@ -7,7 +7,9 @@ the scripted ``aimed`` policy (each subgoal straight at the goal, clipped into t
 space at s) and ``random`` subgoals in that box. The aimed figure bounds what the skills do
 without learning above them; a learned policy far behind it says phase 2 learns too little.
 Rows (run, preset, phase-1 env steps, top box, the three policies' mean minimum distance,
-success and fraction of episodes a flip ended early) are merged into ``--out``.
+success and fraction of episodes a flip ended early, and the learned and aimed policies'
+episodes attempt by attempt: progress toward the goal, and whether the robot ended on its
+back) are merged into ``--out``.
 
     python experiments/chaining.py --runs runs/ant-s0 runs/ant-s1
 """
@@ -23,7 +25,7 @@ from baselines import merge_row, train_phase2
 
 from mjx_emp.metrics import PHASE2_DIAGNOSTICS
 from mjx_emp.run import jobs, store
-from mjx_emp.run.evaluate import phase2_figures
+from mjx_emp.run.evaluate import attempt_figures, phase2_figures
 
 
 @dataclasses.dataclass
@@ -50,13 +52,17 @@ def chaining_row(run_dir: Path, name: str, episodes: int, subdir: str = store.PH
     on the same goals."""
     agent, epoch, state = jobs.load_run(run_dir)
     top = agent.goal_spaces(state)[-1]
-    figures = phase2_figures(*jobs.load_phase2(run_dir / subdir), jax.random.key(7), episodes)
+    trainer, phase2_epoch, phase2_state = jobs.load_phase2(run_dir / subdir)
+    figures = phase2_figures(trainer, phase2_epoch, phase2_state, jax.random.key(7), episodes)
+    attempts = {policy: attempt_figures(dataclasses.replace(trainer, top=policy), phase2_state, jax.random.key(8))
+                for policy in ("learned", "aimed")}
     policies = {"learned": figures, **{p: figures[p] for p in PHASE2_DIAGNOSTICS if p in figures}}
     return {"variant": name or run_dir.name, "run_dir": str(run_dir), "env": agent.cfg.env, "k": agent.cfg.k,
             "seed": agent.cfg.seed, "phase1_epoch": epoch, "phase1_env_steps": float(state.env_steps.value()),
             "top_volume": top["volume"], "phase2_epoch": figures["epoch"], "region": figures["region"],
             "eps": figures["eps"], "attempts": figures["n"],
-            **{f"{p}_{k}": v[k] for p, v in policies.items() for k in ("min_distance", "success", "cut_short")}}
+            **{f"{p}_{k}": v[k] for p, v in policies.items() for k in ("min_distance", "success", "cut_short")},
+            "per_attempt": attempts}
 
 
 def main(args: Args) -> None:

@@ -261,3 +261,52 @@ def test_the_aimed_policy_asks_for_the_goal_itself_inside_the_top_box_and_its_ed
     assert float(jnp.std(draws)) > 0.2 * float(jnp.min(half_width))
     with pytest.raises(ConfigError, match="top: 'greedy' is unknown"):
         dataclasses.replace(trainer, top="greedy")
+
+
+@dataclasses.dataclass(frozen=True)
+class PlanarEnv:
+    """What :func:`attempt_rows` reads of an environment: h(s) is obs[0], the torso pitch obs[1]."""
+
+    def goal_of_obs(self, obs):
+        return obs[..., :1]
+
+    def up_axis_z(self, obs):
+        return np.cos(obs[..., 1])
+
+
+def test_attempt_rows_follow_each_first_episode_attempt_by_attempt():
+    """Rows [T=5, B=2]: environment 0 ends attempts at steps 1 and 3 (its first episode ends at 3,
+    so step 4's row belongs to its second); environment 1's first attempt is cut short at step 0
+    after moving away from the goal, its second ends at step 2 on its back."""
+    from mjx_emp.rollout.hierarchy import Transition
+    from mjx_emp.run.evaluate import attempt_rows
+
+    obs, next_obs = np.zeros((5, 2, 2)), np.zeros((5, 2, 2))
+    obs[1, 0, 0], next_obs[1, 0, 0] = 0.0, 1.0
+    obs[3, 0, 0], next_obs[3, 0, 0] = 1.0, 3.0
+    obs[4, 0, 0], next_obs[4, 0, 0] = 0.0, 4.0
+    obs[0, 1, 0], next_obs[0, 1, 0] = 0.0, -1.0
+    obs[2, 1, 0], next_obs[2, 1, :] = 0.0, (2.0, np.pi)
+    valid, cut = np.zeros((5, 2), bool), np.zeros((5, 2), bool)
+    valid[[1, 3, 4], 0] = True
+    valid[2, 1], cut[0, 1] = True, True
+    top = Transition(obs=obs, goal=np.full((5, 2, 1), 4.0), action=np.zeros((5, 2, 1)), next_obs=next_obs,
+                     reached=np.zeros((5, 2), bool), final=valid | cut, valid=valid, cut=cut)
+    rows = attempt_rows(PlanarEnv(), top, first_end=np.array([3, 2]), attempts=10)
+    assert [r["attempt"] for r in rows] == [0, 1] and [r["episodes"] for r in rows] == [2, 2]
+    np.testing.assert_allclose([r["progress"] for r in rows], [(1.0 - 1.0) / 2, (2.0 + 2.0) / 2])
+    np.testing.assert_allclose([r["distance_after"] for r in rows], [(3.0 + 5.0) / 2, (1.0 + 2.0) / 2])
+    assert [r["cut_short"] for r in rows] == [0.5, 0.0]
+    assert [r["upside_down_before"] for r in rows] == [0.0, 0.0]
+    assert [r["upside_down_after"] for r in rows] == [0.0, 0.5]
+
+
+def test_attempt_figures_of_the_aimed_policy_start_with_every_episode(tiny_phase2):
+    from mjx_emp.run.evaluate import attempt_figures
+
+    trainer, _, state = tiny_phase2
+    rows = attempt_figures(dataclasses.replace(trainer, top="aimed"), state, jax.random.key(0), envs=8)
+    assert rows[0]["attempt"] == 0 and rows[0]["episodes"] == 8
+    counts = [r["episodes"] for r in rows]
+    assert counts == sorted(counts, reverse=True) and len(rows) <= trainer.cfg.n
+    assert all(r["upside_down_after"] == 0.0 and r["cut_short"] == 0.0 for r in rows)  # a point mass never tips

@@ -7,8 +7,10 @@ import dataclasses
 import math
 
 import jax
+import numpy as np
 
 from mjx_emp.metrics import coverage_cells
+from mjx_emp.rollout.hierarchy import jit_init_rollout, jit_rollout
 
 COVERAGE_SKILLS = 48
 """Skills per coverage count, as in METRA's Ant figures."""
@@ -61,3 +63,42 @@ def phase2_figures(trainer, epoch: int, state, key, episodes: int) -> dict:
     for top in trainer.diagnostic_tops:  # the same goals (same key) under the scripted policies
         figures[top] = dataclasses.replace(trainer, top=top).evaluate(state, key, episodes)
     return figures
+
+
+def attempt_figures(trainer, state, key, envs: int = 64) -> list[dict]:
+    """Phase 2's episodes attempt by attempt (:func:`attempt_rows`) for the first greedy episode
+    of each of ``envs`` environments, with the trainer's policy on top (learned, or a scripted
+    ``top``). It tells skills that chain (progress on every attempt) from skills that work once
+    from the initial state and then no more, e.g. because the first left the robot on its back."""
+    plan = trainer.greedy_episodes(state)
+    steps = trainer.cfg.n * math.prod(trainer.phase1.cfg.n) + 1  # the longest episode fits
+    begin = jit_init_rollout(plan.hierarchy, plan.params, plan.start, plan.start_params, key, envs, plan.root)
+    _, transitions, episodes, _ = jit_rollout(plan.hierarchy, plan.params, plan.start, plan.start_params, begin, steps)
+    first = np.asarray(episodes.ended & (episodes.index == 0))
+    first_end = np.where(first, np.arange(steps)[:, None], steps).min(axis=0)
+    return attempt_rows(trainer.env, jax.device_get(transitions[plan.root]), first_end, trainer.cfg.n)
+
+
+def attempt_rows(env, top, first_end: np.ndarray, attempts: int) -> list[dict]:
+    """Per attempt index i (0..``attempts``-1), over the top level's rows ``top`` ([T, B]
+    arrays) up to each environment's ``first_end`` step: how many episodes made an i-th attempt,
+    their mean progress toward the task goal (distance before less distance after, in goal-space
+    units), the distance after, and the fractions that began and ended with the torso upside down
+    (up axis below the horizon) or that a reset cut short."""
+    ended = np.asarray(top.valid | top.cut) & (np.arange(top.valid.shape[0])[:, None] <= first_end[None, :])
+    index = np.cumsum(ended, axis=0) - 1  # which attempt of its episode each ending row closes
+    goal = np.asarray(top.goal)
+    before = np.linalg.norm(np.asarray(env.goal_of_obs(np.asarray(top.obs))) - goal, axis=-1)
+    after = np.linalg.norm(np.asarray(env.goal_of_obs(np.asarray(top.next_obs))) - goal, axis=-1)
+    down_before, down_after = (np.asarray(env.up_axis_z(top.obs)) < 0, np.asarray(env.up_axis_z(top.next_obs)) < 0)
+    rows = []
+    for i in range(attempts):
+        at = ended & (index == i)
+        if not at.any():
+            break
+        rows.append({"attempt": i, "episodes": int(at.sum()), "progress": float((before - after)[at].mean()),
+                     "distance_after": float(after[at].mean()),
+                     "upside_down_before": float(down_before[at].mean()),
+                     "upside_down_after": float(down_after[at].mean()),
+                     "cut_short": float(np.asarray(top.cut)[at].mean())})
+    return rows
