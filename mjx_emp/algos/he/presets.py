@@ -100,10 +100,11 @@ HALF_CHEETAH_CPU_K2_REP4 = dataclasses.replace(HALF_CHEETAH_CPU_K2, level_repeat
 # The one-level Half Cheetah with Table 1's sigma_gs (2.0) instead of 0.5: its box is reached on every goal
 # but grows too slowly for phase 2's 95 m (docs/presets.md#the-half-cheetahs-box-with-table-1s-sigma_gs).
 HALF_CHEETAH_CPU_K1_GS2 = dataclasses.replace(HALF_CHEETAH_CPU_K1, sigma_gs=(2.0,))
-# The one-level and two-level Half Cheetah with level 0 paying for tilting its torso, so its skills keep it off
-# its back, where they no longer move it (docs/presets.md#the-half-cheetah-on-its-back).
+# The one-level Half Cheetah and the two-level one with level 0 four times per epoch, with level 0 paying for
+# tilting its torso, so its skills keep it off its back, where they no longer move it
+# (docs/presets.md#the-half-cheetah-on-its-back).
 HALF_CHEETAH_CPU_K1_TILT = dataclasses.replace(HALF_CHEETAH_CPU_K1, tilt_cost=1.0)
-HALF_CHEETAH_CPU_K2_TILT = dataclasses.replace(HALF_CHEETAH_CPU_K2, tilt_cost=1.0)
+HALF_CHEETAH_CPU_K2_REP4_TILT = dataclasses.replace(HALF_CHEETAH_CPU_K2_REP4, tilt_cost=1.0)
 
 # The cages at CPU scale: the best CPU learner of each robot's field, in its Table-1 cage
 # (docs/presets.md#the-cages-on-a-cpu).
@@ -147,8 +148,8 @@ PRESETS: dict[str, tuple[str, HEConfig]] = {
                                 "(a box that grows faster)", HALF_CHEETAH_CPU_K1_GS2),
     "half-cheetah-cpu-k1-tilt1": ("CPU: half-cheetah-cpu-k1 with level 0 paying 1 per step for a vertical torso "
                                   "(tilt_cost), so its skills keep off its back", HALF_CHEETAH_CPU_K1_TILT),
-    "half-cheetah-cpu-k2-tilt1": ("CPU: half-cheetah-cpu-k2 with level 0 paying 1 per step for a vertical torso "
-                                  "(tilt_cost)", HALF_CHEETAH_CPU_K2_TILT),
+    "half-cheetah-cpu-k2-rep4-tilt1": ("CPU: half-cheetah-cpu-k2-rep4 with level 0 paying 1 per step for a "
+                                       "vertical torso (tilt_cost)", HALF_CHEETAH_CPU_K2_REP4_TILT),
     "half-cheetah-cpu-k1-4iter": ("CPU: half-cheetah-cpu-k1 with 4 solver iterations (accurate contacts)",
                                   HALF_CHEETAH_CPU_K1_4ITER),
     "ant-field-cpu-k1-her-ln": ("CPU: ant-field-cpu-k1 with hindsight goals and a LayerNorm critic, 120 epochs",
