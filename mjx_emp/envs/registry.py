@@ -35,8 +35,8 @@ class DomainSpec:
 # The point mass, which the paper does not use, acts every 0.1 s (up to 0.2 m per action).
 # An Ant that ends upside down cannot right itself: it is reset to its home pose (Gym's
 # convention for an unhealthy Ant) and the episode it was in ends (``flip_resets``). A
-# flipped Half Cheetah can still run along x, its goal space, so it is never reset (as in
-# Gym and Brax).
+# flipped Half Cheetah is never reset (as in Gym and Brax); its tilt is read from its torso's
+# pitch hinge, for levels that pay for tilting (``tilt_cost``).
 ANT_TORSO_QUAT = 3
 HALF_CHEETAH_PITCH = 2
 DOMAINS: dict[str, DomainSpec] = {

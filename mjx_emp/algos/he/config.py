@@ -141,8 +141,7 @@ class HEConfig:
     """Subtracted from level 0's per-step reward times the torso's tilt after the action
     (1 - z of its up axis: 0 upright, 1 on its side, 2 upside down), so the level that moves
     the joints learns to keep the robot upright; robots with a torso that tilts only (the Ant,
-    the Half Cheetah). 0 is
-    the paper's reward, log N(goal; h(s'), sigma) alone."""
+    the Half Cheetah). 0 is the paper's reward, log N(goal; h(s'), sigma) alone."""
     critics: int = 1
     """Goal-conditioned critics per level. 1 is the paper's DDPG; 2 is TD3's clipped
     double-Q (Fujimoto et al. 2018): two critics, bootstrapped targets from the smaller
