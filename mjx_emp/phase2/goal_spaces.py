@@ -349,10 +349,14 @@ class Phase2Trainer(Phase2Loop):
         params = self.rollout_params(state, jnp.zeros(()))
         return RolloutPlan(self.hierarchy, params, self.start, None, root=self.level)
 
+    @property
+    def longest_episode(self) -> int:
+        """Primitive steps of an episode that uses every attempt, each skill to its last action."""
+        return self.cfg.n * math.prod(self.phase1.cfg.n)
+
     def max_chunks(self) -> int:
         """Rollout calls that let every environment finish one episode (every attempt used)."""
-        longest = self.cfg.n * math.prod(self.phase1.cfg.n)
-        return math.ceil(longest / self.phase1.cfg.chunk_steps) + 1
+        return math.ceil(self.longest_episode / self.phase1.cfg.chunk_steps) + 1
 
     def _collect(self, state: Phase2State, noise: jax.Array, store: jax.Array, key: jax.Array):
         """Run num_envs episodes (each environment to the end of its first at least).

@@ -71,7 +71,7 @@ def attempt_figures(trainer, state, key, envs: int = 64) -> list[dict]:
     ``top``). It tells skills that chain (progress on every attempt) from skills that work once
     from the initial state and then no more, e.g. because the first left the robot on its back."""
     plan = trainer.greedy_episodes(state)
-    steps = trainer.cfg.n * math.prod(trainer.phase1.cfg.n) + 1  # the longest episode fits
+    steps = trainer.longest_episode + 1  # the longest episode fits, with its ending step
     begin = jit_init_rollout(plan.hierarchy, plan.params, plan.start, plan.start_params, key, envs, plan.root)
     _, transitions, episodes, _ = jit_rollout(plan.hierarchy, plan.params, plan.start, plan.start_params, begin, steps)
     first = np.asarray(episodes.ended & (episodes.index == 0))
