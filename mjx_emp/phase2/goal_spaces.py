@@ -377,7 +377,7 @@ class Phase2Trainer(Phase2Loop):
             replay = replay_insert(replay, flatten_rows(rows), flatten_rows(stored) & store)
             distance = jnp.linalg.norm(self.env.goal_of_obs(bottom.next_obs) - top.goal, axis=-1)
             running, per_step = running_min_distance(distance, bottom.valid, top.final, running)
-            counted = episodes.ended & (episodes.index == 0)
+            counted = episodes.first_ended
             totals = totals.add(stats, top.valid & store, counted, episodes.reached, per_step, episodes.cut)
             return replay, running, totals
 

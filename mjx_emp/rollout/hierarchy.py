@@ -177,6 +177,11 @@ class EpisodeEnd:
         """Rows where an episode ended, normally or cut short by a reset (for scoring)."""
         return self.valid | self.cut
 
+    @property
+    def first_ended(self) -> jax.Array:
+        """Rows where an environment's first root episode since :func:`init_rollout` ended."""
+        return self.ended & (self.index == 0)
+
 
 @struct.dataclass
 class RolloutState:

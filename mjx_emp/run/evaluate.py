@@ -74,7 +74,7 @@ def attempt_figures(trainer, state, key, envs: int = 64) -> list[dict]:
     steps = trainer.longest_episode + 1  # the longest episode fits, with its ending step
     begin = jit_init_rollout(plan.hierarchy, plan.params, plan.start, plan.start_params, key, envs, plan.root)
     _, transitions, episodes, _ = jit_rollout(plan.hierarchy, plan.params, plan.start, plan.start_params, begin, steps)
-    first = np.asarray(episodes.ended & (episodes.index == 0))
+    first = np.asarray(episodes.first_ended)
     first_end = np.where(first, np.arange(steps)[:, None], steps).min(axis=0)
     return attempt_rows(trainer.env, jax.device_get(transitions[plan.root]), first_end, trainer.cfg.n)
 

@@ -358,7 +358,7 @@ class HEAgent:
             ))
             transitions = flatten_rows(transitions)
             episodes = flatten_rows(episodes)
-            first_episode = episodes.ended & (episodes.index == 0)
+            first_episode = episodes.first_ended
             scored = episodes.ended if cfg.learn_from_resets else episodes.valid
             goal_space_replay = tuple(
                 replay_insert(goal_space_replay[i], self._goal_space_sample(i, episodes), scored & (root == i) & (mode == MODE_GS))
