@@ -108,6 +108,8 @@ HALF_CHEETAH_CPU_K2_REP4_TILT = dataclasses.replace(HALF_CHEETAH_CPU_K2_REP4, ti
 # Both changes at once: the tilt cost keeps the cheetah upright for more attempts and Table 1's sigma_gs grows a
 # longer box, the two things its phase 2 lacks (docs/presets.md#the-half-cheetah-on-its-back).
 HALF_CHEETAH_CPU_K1_TILT_GS2 = dataclasses.replace(HALF_CHEETAH_CPU_K1_TILT, sigma_gs=(2.0,))
+# Four times the tilt cost: a torso on its back costs 8 per step, what the goal reward (sigma_gc 1) charges a 4 m miss.
+HALF_CHEETAH_CPU_K1_TILT4 = dataclasses.replace(HALF_CHEETAH_CPU_K1, tilt_cost=4.0)
 
 # The cages at CPU scale: the best CPU learner of each robot's field, in its Table-1 cage
 # (docs/presets.md#the-cages-on-a-cpu).
@@ -153,6 +155,8 @@ PRESETS: dict[str, tuple[str, HEConfig]] = {
                                   "(tilt_cost), so its skills keep off its back", HALF_CHEETAH_CPU_K1_TILT),
     "half-cheetah-cpu-k1-tilt1-gs2": ("CPU: half-cheetah-cpu-k1-tilt1 with Table 1's sigma_gs of 2.0 (a box that "
                                       "grows faster, skills that keep off its back)", HALF_CHEETAH_CPU_K1_TILT_GS2),
+    "half-cheetah-cpu-k1-tilt4": ("CPU: half-cheetah-cpu-k1 with level 0 paying 4 per step for a vertical torso "
+                                  "(tilt_cost)", HALF_CHEETAH_CPU_K1_TILT4),
     "half-cheetah-cpu-k2-rep4-tilt1": ("CPU: half-cheetah-cpu-k2-rep4 with level 0 paying 1 per step for a "
                                        "vertical torso (tilt_cost)", HALF_CHEETAH_CPU_K2_REP4_TILT),
     "half-cheetah-cpu-k1-4iter": ("CPU: half-cheetah-cpu-k1 with 4 solver iterations (accurate contacts)",
