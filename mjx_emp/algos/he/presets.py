@@ -110,6 +110,11 @@ HALF_CHEETAH_CPU_K2_REP4_TILT = dataclasses.replace(HALF_CHEETAH_CPU_K2_REP4, ti
 HALF_CHEETAH_CPU_K1_TILT_GS2 = dataclasses.replace(HALF_CHEETAH_CPU_K1_TILT, sigma_gs=(2.0,))
 # Four times the tilt cost: a torso on its back costs 8 per step, what the goal reward (sigma_gc 1) charges a 4 m miss.
 HALF_CHEETAH_CPU_K1_TILT4 = dataclasses.replace(HALF_CHEETAH_CPU_K1, tilt_cost=4.0)
+# The same with four times the paper's S=10 goal-space steps per epoch, so the box grows faster while the cost keeps
+# the cheetah upright (docs/presets.md#the-half-cheetah-on-its-back).
+HALF_CHEETAH_CPU_K1_TILT4_GS40 = dataclasses.replace(HALF_CHEETAH_CPU_K1_TILT4, gs_grad_steps=40)
+# The two-level learner with the same cost at level 0, so that a chain of five skills stays upright.
+HALF_CHEETAH_CPU_K2_REP4_TILT4 = dataclasses.replace(HALF_CHEETAH_CPU_K2_REP4, tilt_cost=4.0)
 
 # The cages at CPU scale: the best CPU learner of each robot's field, in its Table-1 cage
 # (docs/presets.md#the-cages-on-a-cpu).
@@ -157,8 +162,12 @@ PRESETS: dict[str, tuple[str, HEConfig]] = {
                                       "grows faster, skills that keep off its back)", HALF_CHEETAH_CPU_K1_TILT_GS2),
     "half-cheetah-cpu-k1-tilt4": ("CPU: half-cheetah-cpu-k1 with level 0 paying 4 per step for a vertical torso "
                                   "(tilt_cost)", HALF_CHEETAH_CPU_K1_TILT4),
+    "half-cheetah-cpu-k1-tilt4-gs40": ("CPU: half-cheetah-cpu-k1-tilt4 with 40 goal-space steps per epoch instead of "
+                                       "the paper's 10 (a box that grows faster)", HALF_CHEETAH_CPU_K1_TILT4_GS40),
     "half-cheetah-cpu-k2-rep4-tilt1": ("CPU: half-cheetah-cpu-k2-rep4 with level 0 paying 1 per step for a "
                                        "vertical torso (tilt_cost)", HALF_CHEETAH_CPU_K2_REP4_TILT),
+    "half-cheetah-cpu-k2-rep4-tilt4": ("CPU: half-cheetah-cpu-k2-rep4 with level 0 paying 4 per step for a "
+                                       "vertical torso (tilt_cost)", HALF_CHEETAH_CPU_K2_REP4_TILT4),
     "half-cheetah-cpu-k1-4iter": ("CPU: half-cheetah-cpu-k1 with 4 solver iterations (accurate contacts)",
                                   HALF_CHEETAH_CPU_K1_4ITER),
     "ant-field-cpu-k1-her-ln": ("CPU: ant-field-cpu-k1 with hindsight goals and a LayerNorm critic, 120 epochs",
