@@ -96,6 +96,10 @@ ANT_FIELD_CPU_K2_4ITER_LN_TILT = dataclasses.replace(ANT_FIELD_CPU_K2_4ITER_LN, 
 # The two-level learner with level 0's iterations run four times per epoch: in the same env steps its
 # level 0 gets over half the one-level learner's iterations, not a quarter (docs/presets.md#repeating-level-0).
 ANT_FIELD_CPU_K2_4ITER_LN_REP4 = dataclasses.replace(ANT_FIELD_CPU_K2_4ITER_LN, level_repeats=(4, 1))
+# The same two-level learner with level 0 paying four times the tilt cost, as the Half Cheetah's
+# half-cheetah-cpu-k2-rep4-tilt4, and the one-level learner with the same cost to compare it with.
+ANT_FIELD_CPU_K2_4ITER_LN_REP4_TILT4 = dataclasses.replace(ANT_FIELD_CPU_K2_4ITER_LN_REP4, tilt_cost=4.0)
+ANT_FIELD_CPU_K1_4ITER_LN_TILT4 = dataclasses.replace(ANT_FIELD_CPU_K1_4ITER_LN, tilt_cost=4.0)
 HALF_CHEETAH_CPU_K2_REP4 = dataclasses.replace(HALF_CHEETAH_CPU_K2, level_repeats=(4, 1))
 # The one-level Half Cheetah with Table 1's sigma_gs (2.0) instead of 0.5: its box is reached on every goal
 # but grows too slowly for phase 2's 95 m (docs/presets.md#the-half-cheetahs-box-with-table-1s-sigma_gs).
@@ -152,6 +156,10 @@ PRESETS: dict[str, tuple[str, HEConfig]] = {
                                         "on its side (tilt_cost)", ANT_FIELD_CPU_K2_4ITER_LN_TILT),
     "ant-field-cpu-k2-4iter-ln-rep4": ("CPU: ant-field-cpu-k2-4iter-ln with level 0's iterations run four times "
                                        "per epoch (level_repeats)", ANT_FIELD_CPU_K2_4ITER_LN_REP4),
+    "ant-field-cpu-k2-4iter-ln-rep4-tilt4": ("CPU: ant-field-cpu-k2-4iter-ln-rep4 with level 0 paying 4 per step for "
+                                             "a torso on its side (tilt_cost)", ANT_FIELD_CPU_K2_4ITER_LN_REP4_TILT4),
+    "ant-field-cpu-k1-4iter-ln-tilt4": ("CPU: ant-field-cpu-k1-4iter-ln with level 0 paying 4 per step for a torso "
+                                        "on its side (tilt_cost)", ANT_FIELD_CPU_K1_4ITER_LN_TILT4),
     "half-cheetah-cpu-k2-rep4": ("CPU: half-cheetah-cpu-k2 with level 0's iterations run four times per epoch "
                                  "(level_repeats)", HALF_CHEETAH_CPU_K2_REP4),
     "half-cheetah-cpu-k1-gs2": ("CPU: half-cheetah-cpu-k1 with Table 1's sigma_gs of 2.0 instead of 0.5 "
