@@ -180,7 +180,9 @@ def test_train_writes_config_and_one_metrics_line_per_epoch(tmp_path):
 
 @pytest.mark.parametrize("flags, cached", [((), True), (("--no-compile-cache",), False)])
 def test_compiled_programs_are_cached_under_the_users_cache_dir_unless_turned_off(tmp_path, flags, cached):
-    env = {**os.environ, "XDG_CACHE_HOME": str(tmp_path)}
+    # Store every program, however fast it compiles: what is checked is where the cache goes, and on a fast
+    # machine this small rollout compiles in under the default one-second threshold.
+    env = {**os.environ, "XDG_CACHE_HOME": str(tmp_path), "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "0"}
     env.pop("JAX_COMPILATION_CACHE_DIR", None)  # the test session's own cache
     result = subprocess.run([sys.executable, "-m", "mjx_emp.cli", "rollout", "--n", "10", "--eps", "0.3", "--steps",
                              "20", "--batch-size", "8", "--calls", "1", *flags],
