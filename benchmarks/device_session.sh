@@ -6,7 +6,9 @@
 # seconds. Everything lands in $OUT: versions.txt (the settings, the GPU, the packages), smoke.log,
 # device_check_gpu.json, check.log, and per row <preset>.log, <preset>.metrics.jsonl, <preset>.skills.tar
 # (its skills export: phase 2 and eval can go on from it on another machine), <preset>.phase2.jsonl
-# and <preset>.eval.json. See docs/gpu.md.
+# and <preset>.eval.json. With SEEDS (e.g. "0 1 2 3") each row trains those seeds in one vmapped program
+# (`--seeds`), and every per-row file above is per run, <preset>-s<seed>, but for the log and the metrics,
+# which travel inside each run's skills export (a lease returns at most 8 files). See docs/gpu.md.
 #
 #   OUT=/tmp/out TOTAL_S=560 CHECK_S=300 bash benchmarks/device_session.sh
 #   OUT=/tmp/out TOTAL_S=540 CHECK_S=0 PHASE2_S=200 ROWS=ant-field-small-k1 \
@@ -23,6 +25,7 @@ CHECK_S=${CHECK_S:-300}  # of which the prepared check may take at most this man
 PHASE2_S=${PHASE2_S:-0}  # of which the rows' phase 2 and eval take the last this many; 0: none
 ROWS=${ROWS:-ant-field-small-k1 half-cheetah-small-k1}  # presets trained side by side
 TRAIN_FLAGS=${TRAIN_FLAGS:-}  # config flags for every row, e.g. --solver-iterations 4
+SEEDS=${SEEDS:-}  # seeds trained together in each row's one program; empty: the preset's own seed
 DRY=${DRY:-0}
 RUNS=${RUNS:-/tmp/runs}  # the training rows' run directories (their checkpoints stay on the machine)
 PY=${PYTHON:-python3}
@@ -62,7 +65,7 @@ agent = make_agent(cfg)
 print("smoke epoch", agent.metrics(*agent.train_epoch(agent.init()), 1.0)["env_steps"])
 PY
 }
-printf '%s\n' "ROWS=$ROWS" "TRAIN_FLAGS=$TRAIN_FLAGS" "TOTAL_S=$TOTAL_S" "CHECK_S=$CHECK_S" \
+printf '%s\n' "ROWS=$ROWS" "TRAIN_FLAGS=$TRAIN_FLAGS" "SEEDS=$SEEDS" "TOTAL_S=$TOTAL_S" "CHECK_S=$CHECK_S" \
   "PHASE2_S=$PHASE2_S" "DRY=$DRY" > "$OUT/versions.txt"  # the settings first, then the machine
 nvidia-smi >> "$OUT/versions.txt" 2>&1
 if ! smoke >> "$OUT/versions.txt" 2> "$OUT/smoke.log"; then
@@ -89,33 +92,46 @@ if [ "$DRY" = 1 ]; then  # one row: the suite pays for each compile
   phase2_args=(--epochs 1 --num-envs 4 --iterations 1 --grad-steps 1 --eval-rounds 1)
   eval_args=(--episodes 8)
 fi
-EXPORT_S=${EXPORT_S:-45}  # per row: its skills export (`mjx-emp export`), small enough to come back in $OUT
-budget=$(( $(left) - 15 - PHASE2_S - EXPORT_S * ${#rows[@]} ))
+seed_args=()
+[ -n "$SEEDS" ] && read -r -a seeds <<< "$SEEDS" && seed_args=(--seeds "${seeds[@]}")
+runs_of() {  # the run directories (under $RUNS) a row trains: the row's own, or one per seed
+  if [ -n "$SEEDS" ]; then for seed in "${seeds[@]}"; do echo "$1-s$seed"; done; else echo "$1"; fi
+}
+EXPORT_S=${EXPORT_S:-60}  # the runs' skills exports (`mjx-emp export`, side by side on the CPU), small enough for $OUT
+budget=$(( $(left) - 15 - PHASE2_S - EXPORT_S ))
 echo "training ${rows[*]} side by side for $budget s"
-[ "${#rows[@]}" -gt 1 ] && export XLA_PYTHON_CLIENT_MEM_FRACTION=0.$(( 80 / ${#rows[@]} ))  # one GPU, shared
+[ "${#rows[@]}" -gt 1 ] && export XLA_PYTHON_CLIENT_MEM_FRACTION=$(printf 0.%02d $(( 80 / ${#rows[@]} )))  # one GPU, shared
 for preset in "${rows[@]}"; do
-  timeout --signal=TERM --kill-after=10 "$budget" \
-    $PY -m mjx_emp.cli train "$preset" --run-dir "$RUNS/$preset" "${train_args[@]}" > "$OUT/$preset.log" 2>&1 &
+  timeout --signal=TERM --kill-after=10 "$budget" $PY -m mjx_emp.cli train "$preset" --run-dir "$RUNS/$preset" \
+    "${seed_args[@]}" "${train_args[@]}" > "$OUT/$preset.log" 2>&1 &
 done
 wait
-for preset in "${rows[@]}"; do  # the skills without their replays: phase 2 and eval can run on them elsewhere
-  timeout --signal=KILL "$EXPORT_S" $PY -m mjx_emp.cli export "$RUNS/$preset" --out "$RUNS/$preset.skills" \
-    >> "$OUT/$preset.log" 2>&1 && tar cf "$OUT/$preset.skills.tar" -C "$RUNS" "$preset.skills"  # orbax nests too deep for $OUT
+runs=()
+for preset in "${rows[@]}"; do for run in $(runs_of "$preset"); do runs+=("$run"); done; done
+for run in "${runs[@]}"; do  # the skills without their replays: phase 2 and eval can run on them elsewhere
+  (JAX_PLATFORMS=cpu timeout --signal=KILL "$EXPORT_S" $PY -m mjx_emp.cli export "$RUNS/$run" --out "$RUNS/$run.skills" \
+    > "$RUNS/$run.export.log" 2>&1 && tar cf "$OUT/$run.skills.tar" -C "$RUNS" "$run.skills") &  # orbax nests too deep for $OUT
 done
-if [ "$PHASE2_S" -gt 0 ]; then  # phase 2 on each row's newest checkpoint, then its figures
+wait
+for preset in "${rows[@]}"; do for run in $(runs_of "$preset"); do cat "$RUNS/$run.export.log" >> "$OUT/$preset.log"; done; done
+if [ "$PHASE2_S" -gt 0 ]; then  # phase 2 on each run's newest checkpoint, then its figures
+  [ "${#runs[@]}" -gt 1 ] && export XLA_PYTHON_CLIENT_MEM_FRACTION=$(printf 0.%02d $(( 80 / ${#runs[@]} )))
   for preset in "${rows[@]}"; do
-    (
-      timeout --signal=TERM --kill-after=30 $(( PHASE2_S / 2 )) \
-        $PY -m mjx_emp.cli phase2 "$RUNS/$preset" "${phase2_args[@]}" >> "$OUT/$preset.log" 2>&1
-      timeout --signal=KILL $(( $(left) > 20 ? $(left) - 10 : 10 )) $PY -m mjx_emp.cli eval "$RUNS/$preset" "${eval_args[@]}" \
-        --out "$OUT/$preset.eval.json" >> "$OUT/$preset.log" 2>&1
-    ) &
+    for run in $(runs_of "$preset"); do
+      (
+        timeout --signal=TERM --kill-after=30 $(( PHASE2_S / 2 )) \
+          $PY -m mjx_emp.cli phase2 "$RUNS/$run" "${phase2_args[@]}" > "$RUNS/$run.phase2.log" 2>&1
+        timeout --signal=KILL $(( $(left) > 20 ? $(left) - 10 : 10 )) $PY -m mjx_emp.cli eval "$RUNS/$run" "${eval_args[@]}" \
+          --out "$OUT/$run.eval.json" >> "$RUNS/$run.phase2.log" 2>&1
+      ) &
+    done
   done
   wait
+  for preset in "${rows[@]}"; do for run in $(runs_of "$preset"); do cat "$RUNS/$run.phase2.log" >> "$OUT/$preset.log"; done; done
 fi
-for preset in "${rows[@]}"; do
-  cp "$RUNS/$preset/metrics.jsonl" "$OUT/$preset.metrics.jsonl" 2>/dev/null
-  cp "$RUNS/$preset/phase2/metrics.jsonl" "$OUT/$preset.phase2.jsonl" 2>/dev/null
-  tail -3 "$OUT/$preset.log"
+for run in "${runs[@]}"; do
+  [ -n "$SEEDS" ] || cp "$RUNS/$run/metrics.jsonl" "$OUT/$run.metrics.jsonl" 2>/dev/null  # else in its export
+  cp "$RUNS/$run/phase2/metrics.jsonl" "$OUT/$run.phase2.jsonl" 2>/dev/null
 done
+for preset in "${rows[@]}"; do tail -3 "$OUT/$preset.log"; done
 echo "session done in $(( $(date +%s) - began )) s"
