@@ -39,12 +39,20 @@ class Args:
     train: bool = True
     """Train (or resume) phase 2 first; False evaluates the phase-2 directories as they are."""
     learn_from_resets: bool = False
-    """Phase 2 keeps the attempts a flip ended (``Phase2Config.learn_from_resets``); it is trained
-    into RUN_DIR/phase2-resets and the rows' variant ends in ``+resets``."""
+    """Phase 2 keeps the attempts a flip ended (``Phase2Config.learn_from_resets``)."""
+    aim_prior: bool = False
+    """Phase 2 starts as the aimed policy and learns a correction (``Phase2Config.aim_prior``)."""
     out: str = "benchmarks/results/chaining_cpu.json"
 
 
-RESETS_SUBDIR = "phase2-resets"
+OPTION_TAGS = {"learn_from_resets": "resets", "aim_prior": "aim"}
+"""Phase-2 options beyond the domain's preset, and the tag each adds: phase 2 with options is
+trained into RUN_DIR/phase2-<tag>[-<tag>] and its rows' variant ends in +<tag>[+<tag>]."""
+
+
+def options_of(args: Args) -> dict[str, bool]:
+    """The phase-2 options ``args`` turns on, as config changes."""
+    return {name: True for name in OPTION_TAGS if getattr(args, name)}
 
 
 def chaining_row(run_dir: Path, name: str, episodes: int, subdir: str = store.PHASE2_SUBDIR) -> dict:
@@ -68,13 +76,14 @@ def chaining_row(run_dir: Path, name: str, episodes: int, subdir: str = store.PH
 def main(args: Args) -> None:
     if not args.runs:
         raise SystemExit("runs: give at least one phase-1 run directory")
-    subdir = RESETS_SUBDIR if args.learn_from_resets else store.PHASE2_SUBDIR
+    changes = options_of(args)
+    tags = [OPTION_TAGS[name] for name in changes]
+    subdir = "-".join([store.PHASE2_SUBDIR, *tags])
     for run in map(Path, args.runs):
         if args.train:
-            train_phase2(run, subdir, learn_from_resets=args.learn_from_resets)
+            train_phase2(run, subdir, **changes)
         row = chaining_row(run, args.name, args.episodes, subdir)
-        if args.learn_from_resets:
-            row["variant"] += "+resets"
+        row["variant"] += "".join(f"+{tag}" for tag in tags)
         print(row, flush=True)
         merge_row(Path(args.out), row, key=("variant", "run_dir"))
 

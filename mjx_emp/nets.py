@@ -81,17 +81,29 @@ def fixed_box(box: jax.Array, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
     return box[0], box[1]
 
 
-def level_policy(env: Env, actor: MLP, box_fn: BoxFn) -> LevelPolicy:
+AIM_EDGE = 0.95
+"""How far toward its box's edge an aim prior places a subgoal (in half-widths), so the tanh
+around it keeps a gradient."""
+
+
+def level_policy(env: Env, actor: MLP, box_fn: BoxFn, aim_prior: bool = False) -> LevelPolicy:
     """A deterministic goal-conditioned policy (plus optional Gaussian exploration).
 
-    action = clip(tanh(f(s, z)) + noise * N(0, 1), -1, 1) * half_width + shift, with
-    (shift, half_width) = box_fn(params.box, s). With ``noise`` = 0 it is the paper's
-    pi_theta; the clip keeps noisy actions inside the box.
+    action = clip(tanh(f(s, z) + prior) + noise * N(0, 1), -1, 1) * half_width + shift, with
+    (shift, half_width) = box_fn(params.box, s). With ``noise`` = 0 and no prior it is the
+    paper's pi_theta; the clip keeps noisy actions inside the box. With ``aim_prior`` the
+    prior is the pre-tanh value of the aimed subgoal (see :func:`aimed_policy`, kept within
+    ``AIM_EDGE`` of the box's edge), so a network whose output starts near zero starts as the
+    scripted policy and learns a correction to it.
     """
 
     def policy(params: LevelParams, obs: jax.Array, goal: jax.Array, key: jax.Array) -> jax.Array:
         shift, half_width = box_fn(params.box, obs)
-        unit = jnp.tanh(actor.apply(params.actor, goal_features(env, obs, goal)))
+        logit = actor.apply(params.actor, goal_features(env, obs, goal))
+        if aim_prior:
+            aimed = jnp.clip((env.goal_offset(obs, goal) - shift) / half_width, -AIM_EDGE, AIM_EDGE)
+            logit = logit + jnp.arctanh(aimed)
+        unit = jnp.tanh(logit)
         unit = unit + params.noise * jax.random.normal(key, unit.shape, unit.dtype)
         return jnp.clip(unit, -1.0, 1.0) * half_width + shift
 

@@ -14,7 +14,7 @@ from mjx_emp.algos.he.presets import PRESETS
 from mjx_emp.algos.registry import all_presets
 from mjx_emp.envs.registry import DOMAINS
 from mjx_emp.errors import ConfigError
-from mjx_emp.nets import LevelParams
+from mjx_emp.nets import AIM_EDGE, LevelParams
 from mjx_emp.phase2.config import Phase2Config, check_phase2_config
 from mjx_emp.phase2.goal_spaces import TRAIN_EPOCH_TRACE, Phase2Trainer
 from mjx_emp.phase2.presets import PHASE2_PRESETS, phase2_preset_for
@@ -175,6 +175,7 @@ def test_every_table_2_preset_builds_on_a_phase_1_preset_of_the_same_domain():
         check_phase2_config(cfg, goal_size=len(DOMAINS[skills.env].goal_qpos))
         if name.startswith(("ant", "half")):
             assert name == phase1
+        assert not cfg.aim_prior and not cfg.learn_from_resets, name  # options beyond the paper stay off
     assert phase2_preset_for(PRESETS["ant-field-xl-k3"][1]) == "ant-field-xl-k3"
     # Two presets share Ant Field's n = (20,): each run gets the task sized for its own preset.
     assert phase2_preset_for(PRESETS["ant-field-small-k1"][1]) == "ant-field-small-k1"
@@ -261,6 +262,33 @@ def test_the_aimed_policy_asks_for_the_goal_itself_inside_the_top_box_and_its_ed
     assert float(jnp.std(draws)) > 0.2 * float(jnp.min(half_width))
     with pytest.raises(ConfigError, match="top: 'greedy' is unknown"):
         dataclasses.replace(trainer, top="greedy")
+
+
+def test_an_aim_prior_starts_as_the_aimed_policy_and_training_moves_it_away(tiny_phase2):
+    trainer, skills_state, plain_state = tiny_phase2
+    primed = Phase2Trainer(trainer.phase1, dataclasses.replace(TINY_PHASE2, aim_prior=True))
+    assert primed != trainer  # its own compiled programs
+    state = primed.init(skills_state)
+    k, env = primed.level, primed.env
+    box = state.goal_space_actors[k - 1]
+    obs = jnp.asarray(primed.phase1.initial_obs)
+    shift, half_width = primed.phase1.nets.learned_box(k - 1)(box, obs)
+    here = env.goal_of_obs(obs)
+    goals = jnp.stack([here + shift + 0.5 * half_width, here + shift - 0.3 * half_width,
+                       here + shift + 10.0 * half_width])  # two inside the top box, one far beyond its corner
+    wanted = jnp.stack([shift + 0.5 * half_width, shift - 0.3 * half_width, shift + AIM_EDGE * half_width])
+    obs_batch = jnp.broadcast_to(obs, (3, obs.size))
+
+    def greedy(trainer, state):
+        return trainer.greedy_actions(state)(state.learner.actor, obs_batch, goals)
+
+    np.testing.assert_allclose(greedy(primed, state), wanted, atol=0.02 * float(jnp.min(half_width)))
+    plain = np.asarray(greedy(trainer, plain_state))  # without the prior a fresh actor asks for something else
+    assert np.abs(plain - np.asarray(wanted)).max() > 0.05 * float(jnp.min(half_width))
+    trained, _ = primed.train_epoch(jax.tree.map(jnp.copy, state))
+    moved = np.asarray(greedy(primed, trained))
+    assert np.abs(moved - np.asarray(greedy(primed, state))).max() > 1e-4  # the correction is learned
+    assert (np.abs(moved - np.asarray(shift)) <= np.asarray(half_width) + 1e-5).all()
 
 
 @dataclasses.dataclass(frozen=True)

@@ -15,6 +15,7 @@ from tiny import TINY_PHASE2, run_cli
 
 from mjx_emp.algos.skills.agent import SkillAgent
 from mjx_emp.commands import Phase2Experiment, ResumeExperiment, TrainExperiment
+from mjx_emp.errors import ConfigError
 from mjx_emp.phase2.build import make_phase2_trainer
 from mjx_emp.phase2.latent import FlatPhase2Trainer
 from mjx_emp.run import jobs
@@ -35,6 +36,12 @@ def test_the_factory_picks_the_flat_trainer_and_it_chooses_unit_length_skills(me
     goals = jax.random.uniform(jax.random.key(0), (5, 2), minval=-2, maxval=2)
     skills = trainer.choose(state.learner.actor, obs, goals)
     np.testing.assert_allclose(np.linalg.norm(skills, axis=-1), 1.0, rtol=1e-5)
+
+
+def test_an_aim_prior_over_latent_skills_is_refused_naming_the_field(metra_phase2):
+    trainer, _, _ = metra_phase2
+    with pytest.raises(ConfigError, match="aim_prior: a skill z has no subgoal"):
+        make_phase2_trainer(trainer.phase1, dataclasses.replace(TINY_PHASE2, aim_prior=True))
 
 
 def test_a_collect_plays_one_episode_per_env_with_at_most_n_attempts(metra_phase2):

@@ -68,6 +68,11 @@ class Phase2Config:
     robot stayed where it fell (``learners.ddpg.cut_backup``), so the policy learns what a
     flip costs. Off: those attempts are dropped, as every transition a reset cuts is in phase 1,
     and the policy never sees one."""
+    aim_prior: bool = False
+    """Start the policy as the scripted aimed one (each subgoal straight at the goal, within the
+    top goal space) and learn a correction to it: the actor's output is added before the tanh to
+    the aimed subgoal's, from an output layer that starts near zero. Beyond the paper (off in its
+    presets); for skills addressed by goal-space subgoals (HE, GCRL), not latent skills."""
     phase1_epoch: int = -1
     """Phase-1 checkpoint to build on; -1 means the newest one of the run."""
     seed: int = 0

@@ -60,6 +60,10 @@ from mjx_emp.rollout.collect import CollectTotals, collect
 from mjx_emp.rollout.hierarchy import Hierarchy, Params, RolloutPlan, init_rollout
 from mjx_emp.tracing import count_trace
 
+AIM_PRIOR_OUT_SCALE = 1e-4
+"""Init scale of the actor's output layer under an aim prior: the policy starts within a few
+per cent of the aimed one."""
+
 TRAIN_EPOCH_TRACE = "downstream.train_epoch"
 """Name under which :mod:`mjx_emp.tracing` counts traces (compiles) of the phase-2 epoch."""
 
@@ -124,7 +128,8 @@ class Phase2Loop:
 
     @functools.cached_property
     def actor_net(self) -> MLP:
-        return MLP(tuple(self.cfg.hidden), self.action_size)
+        """The phase-2 actor; with an aim prior its output starts near zero (the prior alone)."""
+        return MLP(tuple(self.cfg.hidden), self.action_size, out_scale=AIM_PRIOR_OUT_SCALE if self.cfg.aim_prior else 1.0)
 
     @functools.cached_property
     def critic_net(self) -> MLP:
@@ -292,7 +297,7 @@ class Phase2Trainer(Phase2Loop):
         object.__setattr__(self, "identity", compile_identity(self.cfg))
         k, phase1 = self.level, self.phase1.cfg
         box = self.phase1.nets.learned_box(k - 1)
-        policy = {"learned": lambda: level_policy(self.env, self.actor_net, box),
+        policy = {"learned": lambda: level_policy(self.env, self.actor_net, box, aim_prior=self.cfg.aim_prior),
                   "aimed": lambda: aimed_policy(self.env, box),
                   "aimed_half": lambda: aimed_policy(self.env, box, reach=0.5),
                   "random": lambda: random_policy(box)}[self.top]()

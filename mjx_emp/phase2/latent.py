@@ -26,6 +26,7 @@ from flax import struct
 
 from mjx_emp.algos.skills.agent import SkillAgent, SkillState
 from mjx_emp.checks import compile_identity
+from mjx_emp.errors import ConfigError
 from mjx_emp.counters import StepCounter
 from mjx_emp.envs.env import EnvState
 from mjx_emp.learners.ddpg import DDPGLearner, GoalTransition
@@ -82,6 +83,9 @@ class FlatPhase2Trainer(Phase2Loop):
 
     def __post_init__(self):
         check_phase2_config(self.cfg, self.phase1.env.goal_size)
+        if self.cfg.aim_prior:
+            raise ConfigError("aim_prior: a skill z has no subgoal to aim at the goal; allowed only over skills "
+                              "addressed by goal-space subgoals (HE, GCRL), so use False here")
         object.__setattr__(self, "identity", compile_identity(self.cfg))
 
     @property
