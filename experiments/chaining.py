@@ -42,17 +42,25 @@ class Args:
     """Phase 2 keeps the attempts a flip ended (``Phase2Config.learn_from_resets``)."""
     aim_prior: bool = False
     """Phase 2 starts as the aimed policy and learns a correction (``Phase2Config.aim_prior``)."""
+    aim_weight: float = 0.0
+    """With ``aim_prior``, the actor's cost of leaving it (``Phase2Config.aim_weight``)."""
     out: str = "benchmarks/results/chaining_cpu.json"
 
 
-OPTION_TAGS = {"learn_from_resets": "resets", "aim_prior": "aim"}
-"""Phase-2 options beyond the domain's preset, and the tag each adds: phase 2 with options is
-trained into RUN_DIR/phase2-<tag>[-<tag>] and its rows' variant ends in +<tag>[+<tag>]."""
+OPTION_TAGS = {"learn_from_resets": "resets", "aim_prior": "aim", "aim_weight": "w"}
+"""Phase-2 options beyond the domain's preset, and the tag each adds (a number follows the tag of
+a number): phase 2 with options is trained into RUN_DIR/phase2-<tag>[-<tag>] and its rows'
+variant ends in +<tag>[+<tag>]."""
 
 
-def options_of(args: Args) -> dict[str, bool]:
-    """The phase-2 options ``args`` turns on, as config changes."""
-    return {name: True for name in OPTION_TAGS if getattr(args, name)}
+def options_of(args: Args) -> dict:
+    """The phase-2 options ``args`` sets away from the preset's (off, 0), as config changes."""
+    return {name: getattr(args, name) for name in OPTION_TAGS if getattr(args, name)}
+
+
+def option_tag(name: str, value) -> str:
+    """One option's tag: ``resets``, ``aim``, ``w1``."""
+    return OPTION_TAGS[name] + ("" if isinstance(value, bool) else f"{value:g}")
 
 
 def chaining_row(run_dir: Path, name: str, episodes: int, subdir: str = store.PHASE2_SUBDIR) -> dict:
@@ -77,7 +85,7 @@ def main(args: Args) -> None:
     if not args.runs:
         raise SystemExit("runs: give at least one phase-1 run directory")
     changes = options_of(args)
-    tags = [OPTION_TAGS[name] for name in changes]
+    tags = [option_tag(name, value) for name, value in changes.items()]
     subdir = "-".join([store.PHASE2_SUBDIR, *tags])
     for run in map(Path, args.runs):
         if args.train:

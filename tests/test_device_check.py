@@ -47,6 +47,29 @@ def test_the_device_session_dry_run_runs_every_step_and_writes_json(tmp_path):
     assert run["epoch"] == 2 and run["phase2"]["epoch"] == 1 and run["phase2"]["episodes"] == 8
 
 
+@pytest.mark.slow  # two and a half minutes of CPU; run it before a GPU lease that trains seeds together
+def test_the_device_session_trains_a_rows_seeds_in_one_program_and_returns_each_seeds_skills(tmp_path):
+    out = tmp_path / "out"
+    env = {**os.environ, "DRY": "1", "WHEELS": "none", "PYTHON": sys.executable, "OUT": str(out), "SEEDS": "0 1",
+           "RUNS": str(tmp_path / "runs"), "TOTAL_S": "700", "CHECK_S": "0", "PHASE2_S": "300",
+           "JAX_COMPILATION_CACHE_DIR": str(tmp_path / "cache")}
+    result = subprocess.run(["bash", str(ROOT / "benchmarks" / "device_session.sh")], capture_output=True, text=True,
+                            timeout=900, cwd=ROOT, env=env)
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    log = (out / "point-mass-k1.log").read_text()
+    assert f"run directories: {tmp_path}/runs/point-mass-k1-s0, {tmp_path}/runs/point-mass-k1-s1" in log  # one program
+    assert not (out / "point-mass-k1.metrics.jsonl").exists()  # each seed's metrics travel in its export
+    for seed in (0, 1):
+        run = f"point-mass-k1-s{seed}"
+        with tarfile.open(out / f"{run}.skills.tar") as tar:
+            assert json.loads(tar.extractfile(f"{run}.skills/config.json").read())["seed"] == seed
+            lines = tar.extractfile(f"{run}.skills/metrics.jsonl").read().decode().splitlines()
+        assert [json.loads(line)["epoch"] for line in lines] == [1, 2]
+        (row,) = json.loads((out / f"{run}.eval.json").read_text())["runs"]  # phase 2 and eval per seed
+        assert row["phase2"]["episodes"] == 8
+        assert len((out / f"{run}.phase2.jsonl").read_text().splitlines()) == 1
+
+
 def test_the_device_check_refuses_an_unknown_step_with_exit_2(tmp_path):
     result = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "device_check.py"), "--dry-run",
                              "--steps", "memory", "warmup", "--out", str(tmp_path / "x.json")],

@@ -163,6 +163,8 @@ def test_a_cut_backup_scores_the_fall_for_ever_and_bootstraps_nothing():
     ("eps", 0.0, "eps: must be > 0"),
     ("gamma", 1.0, "gamma: must be in [0, 1)"),
     ("phase1_epoch", -2, "phase1_epoch"),
+    ("aim_weight", 1.0, "aim_weight: a cost of leaving the aim prior needs aim_prior True"),
+    ("aim_weight", -1.0, "aim_weight: must be >= 0"),
 ])
 def test_bad_phase2_values_name_the_field(field, value, message):
     with pytest.raises(ConfigError, match=message.replace("[", r"\[").replace("(", r"\(").replace(")", r"\)")):
@@ -289,6 +291,24 @@ def test_an_aim_prior_starts_as_the_aimed_policy_and_training_moves_it_away(tiny
     moved = np.asarray(greedy(primed, trained))
     assert np.abs(moved - np.asarray(greedy(primed, state))).max() > 1e-4  # the correction is learned
     assert (np.abs(moved - np.asarray(shift)) <= np.asarray(half_width) + 1e-5).all()
+
+
+def test_a_cost_of_leaving_the_aim_prior_keeps_the_policy_near_the_aimed_subgoals(tiny_phase2):
+    trainer, skills_state, _ = tiny_phase2
+    eager = dataclasses.replace(TINY_PHASE2, aim_prior=True, grad_steps=40, actor_lr=1e-2)  # drifts within an epoch
+    obs = jnp.broadcast_to(jnp.asarray(trainer.phase1.initial_obs), (64, trainer.env.obs_size))
+    goals = jax.random.uniform(jax.random.key(4), (64, trainer.env.goal_size), minval=-1.5, maxval=1.5)
+
+    def drift(weight: float) -> float:
+        """How far (in goal units) one epoch moves the greedy subgoals from where the prior starts them."""
+        primed = Phase2Trainer(trainer.phase1, dataclasses.replace(eager, aim_weight=weight))
+        state = primed.init(skills_state)
+        before = primed.greedy_actions(state)(state.learner.actor, obs, goals)
+        state, _ = primed.train_epoch(state)
+        return float(jnp.abs(primed.greedy_actions(state)(state.learner.actor, obs, goals) - before).mean())
+
+    free, held = drift(0.0), drift(100.0)
+    assert held < 0.5 * free, (held, free)
 
 
 @dataclasses.dataclass(frozen=True)

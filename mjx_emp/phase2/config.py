@@ -73,6 +73,11 @@ class Phase2Config:
     top goal space) and learn a correction to it: the actor's output is added before the tanh to
     the aimed subgoal's, from an output layer that starts near zero. Beyond the paper (off in its
     presets); for skills addressed by goal-space subgoals (HE, GCRL), not latent skills."""
+    aim_weight: float = 0.0
+    """With ``aim_prior``, what the actor pays for leaving the prior: its loss becomes
+    -Q / mean|Q| + aim_weight * mean(f^2), f the correction added before the tanh (the critic's
+    gain normalised as in TD3+BC, Fujimoto and Gu 2021), so the policy moves off the aimed
+    subgoal only where the critic's gain outweighs the cost. 0: plain DDPG over the prior."""
     phase1_epoch: int = -1
     """Phase-1 checkpoint to build on; -1 means the newest one of the run."""
     seed: int = 0
@@ -97,6 +102,11 @@ def check_phase2_config(cfg: Phase2Config, goal_size: int | None = None) -> None
                 raise ConfigError(f"{name}: the domain's goal space has {goal_size} dimension(s); "
                                   f"got {getattr(cfg, name)}")
     check_learning(cfg, ("actor_lr", "critic_lr"), ("action_noise",))
+    if not cfg.aim_weight >= 0:
+        raise ConfigError(f"aim_weight: must be >= 0; got {cfg.aim_weight}")
+    if cfg.aim_weight > 0 and not cfg.aim_prior:
+        raise ConfigError(f"aim_weight: a cost of leaving the aim prior needs aim_prior True; got {cfg.aim_weight} "
+                          "with aim_prior False")
     if cfg.phase1_epoch < -1:
         raise ConfigError(f"phase1_epoch: an epoch >= 0, or -1 for the newest; got {cfg.phase1_epoch}")
     check_finite(cfg)

@@ -171,10 +171,26 @@ class Phase2Loop:
         def step(learner: DDPGLearner, step_key):
             batch = replay_sample(state.replay, step_key, cfg.batch_size)
             losses = ddpg_losses(act, self.q_value, learner, batch, self.env, cfg.sigma, cfg.gamma)
+            if cfg.aim_weight > 0:
+                losses = (losses[0], self.anchored_actor_loss(act, batch))
             return ddpg_step(learner, losses, actor_tx, critic_tx, cfg.tau)
 
         learner, losses = jax.lax.scan(step, state.learner, jax.random.split(key, cfg.grad_steps))
         return state.replace(learner=learner), losses.mean(axis=0)
+
+    def anchored_actor_loss(self, act, batch: GoalTransition):
+        """The actor's loss under a weighted aim prior (``Phase2Config.aim_weight``): the critic's
+        gain normalised by its mean magnitude, less the cost of the correction f the actor adds
+        to the aimed subgoal before the tanh."""
+        weight = self.cfg.aim_weight
+
+        def actor_loss(actor, critic):
+            q = self.q_value(critic, batch.obs, batch.goal, act(actor, batch.obs, batch.goal))
+            correction = self.actor_net.apply(actor, goal_features(self.env, batch.obs, batch.goal))
+            scale = jax.lax.stop_gradient(jnp.mean(jnp.abs(q))) + 1e-6
+            return -jnp.mean(q) / scale + weight * jnp.mean(jnp.square(correction))
+
+        return actor_loss
 
     def _train_epoch(self, state: Any) -> tuple[Any, Phase2Stats]:
         count_trace(self.trace_name)
