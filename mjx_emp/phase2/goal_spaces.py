@@ -129,7 +129,8 @@ class Phase2Loop:
     @functools.cached_property
     def actor_net(self) -> MLP:
         """The phase-2 actor; with an aim prior its output starts near zero (the prior alone)."""
-        return MLP(tuple(self.cfg.hidden), self.action_size, out_scale=AIM_PRIOR_OUT_SCALE if self.cfg.aim_prior else 1.0)
+        out_scale = AIM_PRIOR_OUT_SCALE if self.cfg.aim_prior else 1.0
+        return MLP(tuple(self.cfg.hidden), self.action_size, out_scale=out_scale)
 
     @functools.cached_property
     def critic_net(self) -> MLP:

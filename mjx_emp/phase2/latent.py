@@ -26,9 +26,9 @@ from flax import struct
 
 from mjx_emp.algos.skills.agent import SkillAgent, SkillState
 from mjx_emp.checks import compile_identity
-from mjx_emp.errors import ConfigError
 from mjx_emp.counters import StepCounter
 from mjx_emp.envs.env import EnvState
+from mjx_emp.errors import ConfigError
 from mjx_emp.learners.ddpg import DDPGLearner, GoalTransition
 from mjx_emp.nets import goal_features
 from mjx_emp.phase2.config import Phase2Config, check_phase2_config
