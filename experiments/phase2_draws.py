@@ -5,7 +5,7 @@ of 400 goals. This evaluates, for each given phase-1 run with a trained RUN_DIR/
 learned policy and the ``aimed`` one on ``draws`` independent draws of ``episodes`` goals each
 (draw i uses key 7 + i, so draw 0 is the chaining diagnostic's), both policies on the same goals
 in each draw. A row per run holds each draw's mean minimum distance, success and fraction of
-episodes a flip ended, per policy, their mean and standard error over the draws, and the
+episodes a flip ended, per policy, their mean, std and standard error over the draws, and the
 learned-minus-aimed difference per draw (paired: the same goals). Rows are merged into ``--out``.
 
     python experiments/phase2_draws.py --runs runs/ant-s0 runs/ant-s1 --draws 3
@@ -14,13 +14,13 @@ learned-minus-aimed difference per draw (paired: the same goals). Rows are merge
 from __future__ import annotations
 
 import dataclasses
-import statistics
 from pathlib import Path
 
 import jax
 import tyro
 from baselines import merge_row
 
+from mjx_emp.metrics import mean_and_stderr
 from mjx_emp.run import jobs, store
 
 
@@ -41,10 +41,15 @@ class Args:
 FIGURES = ("min_distance", "success", "cut_short")
 
 
-def mean_and_se(values: list[float]) -> dict[str, float]:
-    """Mean and standard error over draws (the error is 0 for one draw)."""
-    se = statistics.stdev(values) / len(values) ** 0.5 if len(values) > 1 else 0.0
-    return {"mean": statistics.fmean(values), "se": se}
+def summarise(per_policy: dict[str, list[dict]]) -> dict:
+    """Each policy's figures over the draws (mean, std, stderr), and where both were drawn the
+    learned-minus-aimed difference of the minimum distance per draw (the same goals in a draw)."""
+    summary = {"summary": {policy: {figure: mean_and_stderr([d[figure] for d in rows]) for figure in FIGURES}
+                           for policy, rows in per_policy.items()}}
+    if {"learned", "aimed"} <= set(per_policy):
+        differences = [a["min_distance"] - b["min_distance"] for a, b in zip(per_policy["learned"], per_policy["aimed"])]
+        summary["learned_minus_aimed"] = {"per_draw": differences, **mean_and_stderr(differences)}
+    return summary
 
 
 def draws_row(run_dir: Path, name: str, draws: int, episodes: int, policies: tuple[str, ...]) -> dict:
@@ -55,16 +60,9 @@ def draws_row(run_dir: Path, name: str, draws: int, episodes: int, policies: tup
         top = trainer if policy == "learned" else dataclasses.replace(trainer, top=policy)
         per_policy[policy] = [top.evaluate(state, jax.random.key(7 + i), episodes) for i in range(draws)]
         print(run_dir.name, policy, [round(d["min_distance"], 3) for d in per_policy[policy]], flush=True)
-    row = {"variant": name or run_dir.name, "run_dir": str(run_dir), "seed": trainer.phase1.cfg.seed,
-           "phase2_epoch": phase2_epoch, "draws": draws, "episodes": episodes,
-           "per_draw": per_policy,
-           "summary": {policy: {figure: mean_and_se([d[figure] for d in rows]) for figure in FIGURES}
-                       for policy, rows in per_policy.items()}}
-    if {"learned", "aimed"} <= set(policies):
-        differences = [a["min_distance"] - b["min_distance"]
-                       for a, b in zip(per_policy["learned"], per_policy["aimed"])]
-        row["learned_minus_aimed"] = {"per_draw": differences, **mean_and_se(differences)}
-    return row
+    return {"variant": name or run_dir.name, "run_dir": str(run_dir), "seed": trainer.phase1.cfg.seed,
+            "phase2_epoch": phase2_epoch, "draws": draws, "episodes": episodes, "per_draw": per_policy,
+            **summarise(per_policy)}
 
 
 def main(args: Args) -> None:
