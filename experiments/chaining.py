@@ -7,9 +7,9 @@ the scripted ``aimed`` policy (each subgoal straight at the goal, clipped into t
 space at s) and ``random`` subgoals in that box. The aimed figure bounds what the skills do
 without learning above them; a learned policy far behind it says phase 2 learns too little.
 Rows (run, preset, phase-1 env steps, top box, the three policies' mean minimum distance,
-success and fraction of episodes a flip ended early, and the learned and aimed policies'
-episodes attempt by attempt: progress toward the goal, and whether the robot ended on its
-back) are merged into ``--out``.
+success, fraction of episodes a flip ended early and mean minimum distance over the episodes
+none ended, and the learned and aimed policies' episodes attempt by attempt: progress toward
+the goal, and whether the robot ended on its back) are merged into ``--out``.
 
     python experiments/chaining.py --runs runs/ant-s0 runs/ant-s1
 """
@@ -53,6 +53,10 @@ a number): phase 2 with options is trained into RUN_DIR/phase2-<tag>[-<tag>] and
 variant ends in +<tag>[+<tag>]."""
 
 
+PHASE2_FIGURES = ("min_distance", "success", "cut_short", "uncut_min_distance")
+"""Each policy's figures in a row, as ``<policy>_<figure>``."""
+
+
 def options_of(args: Args) -> dict:
     """The phase-2 options ``args`` sets away from the preset's (off, 0), as config changes."""
     return {name: getattr(args, name) for name in OPTION_TAGS if getattr(args, name)}
@@ -77,7 +81,7 @@ def chaining_row(run_dir: Path, name: str, episodes: int, subdir: str = store.PH
             "seed": agent.cfg.seed, "phase1_epoch": epoch, "phase1_env_steps": float(state.env_steps.value()),
             "top_volume": top["volume"], "phase2_epoch": figures["epoch"], "region": figures["region"],
             "eps": figures["eps"], "attempts": figures["n"],
-            **{f"{p}_{k}": v[k] for p, v in policies.items() for k in ("min_distance", "success", "cut_short")},
+            **{f"{p}_{k}": v[k] for p, v in policies.items() for k in PHASE2_FIGURES},
             "per_attempt": attempts}
 
 

@@ -248,7 +248,9 @@ def evaluate(exp: EvalExperiment) -> dict:
         print(f"phase 2 ({len(with_phase2)} run(s), {first['episodes']} episodes each, region {first['region']}, "
               f"eps {first['eps']}): mean min distance to goal {spread_text(p2['min_distance'])}, "
               f"success {spread_text(p2['success'])}"
-              + (f", ended early by a reset (a flip) {spread_text(p2['cut_short'])}" if "cut_short" in p2 else ""))
+              + (f", ended early by a reset (a flip) {spread_text(p2['cut_short'])}" if "cut_short" in p2 else "")
+              + (f", mean min distance where no reset ended the episode {spread_text(p2['uncut_min_distance'])}"
+                 if "uncut_min_distance" in p2 else ""))
         for policy, what in (("aimed", "subgoals aimed straight at each goal"),
                              ("aimed_half", "subgoals aimed within the top box's central half"),
                              ("random", "random subgoals")):

@@ -105,10 +105,12 @@ subgoals aimed straight at the goal within the top box, the same within its cent
 
 def aggregate_phase2(reports: Sequence[dict]) -> dict:
     """Mean and standard error over runs (seeds) of phase 2's mean minimum distance, success and
-    (where every report has it) the fraction of episodes a reset cut short."""
+    (where every report has them) the fraction of episodes a reset cut short and the mean minimum
+    distance over the episodes none cut."""
     if not reports:
         raise ValueError("aggregate_phase2 needs at least one report")
-    names = ("min_distance", "success") + (("cut_short",) if all("cut_short" in r for r in reports) else ())
+    optional = tuple(name for name in ("cut_short", "uncut_min_distance") if all(name in r for r in reports))
+    names = ("min_distance", "success") + optional
     figures = {name: mean_and_stderr([r[name] for r in reports]) for name in names}
     for policy in PHASE2_DIAGNOSTICS:  # the chaining diagnostic's policies, where every run has them
         if all(policy in r for r in reports):

@@ -112,6 +112,7 @@ def test_evaluation_counts_whole_rounds_of_greedy_episodes(tiny_phase2):
     assert figures["episodes"] == 2 * TINY_PHASE2.num_envs  # 10 episodes round up to two rounds of 8
     assert 0.0 <= figures["success"] <= 1.0 and np.isfinite(figures["min_distance"])
     assert figures["cut_short"] == 0.0  # a point mass under sane skills never resets
+    assert figures["uncut_min_distance"] == pytest.approx(figures["min_distance"], rel=1e-6)
 
 
 def test_evaluation_counts_episodes_a_reset_cut_short(tiny_phase2):
@@ -121,6 +122,7 @@ def test_evaluation_counts_episodes_a_reset_cut_short(tiny_phase2):
     broken = state.replace(skill_actors=jax.tree.map(lambda x: jnp.full_like(x, jnp.nan), state.skill_actors))
     figures = trainer.evaluate(broken, jax.random.key(0), episodes=8)
     assert figures["cut_short"] == 1.0 and figures["success"] == 0.0
+    assert np.isnan(figures["uncut_min_distance"])  # no episode left to average
 
 
 def test_attempts_a_reset_ended_are_kept_as_terminal_rows_only_when_asked(tiny_phase2):
@@ -358,3 +360,23 @@ def test_attempt_figures_of_the_aimed_policy_start_with_every_episode(tiny_phase
     counts = [r["episodes"] for r in rows]
     assert counts == sorted(counts, reverse=True) and len(rows) <= trainer.cfg.n
     assert all(r["upside_down_after"] == 0.0 and r["cut_short"] == 0.0 for r in rows)  # a point mass never tips
+
+
+def test_collect_totals_split_the_distance_between_cut_and_uncut_episodes():
+    """Over first episodes only: the uncut mean leaves out the episodes a reset ended (and the
+    rows that are not first episodes), and is NaN once every counted episode was cut."""
+    from mjx_emp.rollout.collect import CollectTotals
+    from mjx_emp.rollout.hierarchy import RolloutStats
+
+    zero = jnp.int32(0)
+    stats = RolloutStats(primitive_steps=jnp.int32(4), useful_steps=zero, episodes_finished=zero, nan_resets=zero,
+                         flip_resets=zero, decisions=())
+    first = jnp.array([True, True, True, False])
+    distance = jnp.array([1.0, 3.0, 8.0, 100.0])
+    cut = jnp.array([False, False, True, True])
+    totals = CollectTotals.zero().add(stats, first, first, jnp.zeros(4, bool), distance, cut)
+    assert float(totals.mean_distance()) == pytest.approx(4.0)
+    assert float(totals.cut_fraction()) == pytest.approx(1 / 3)
+    assert float(totals.uncut_mean_distance()) == pytest.approx(2.0)
+    all_cut = CollectTotals.zero().add(stats, first, first, jnp.zeros(4, bool), distance, jnp.ones(4, bool))
+    assert np.isnan(float(all_cut.uncut_mean_distance()))

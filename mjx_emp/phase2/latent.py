@@ -180,6 +180,7 @@ class FlatPhase2Trainer(Phase2Loop):
             env_steps=steps, transitions=jnp.where(store, stored.sum(dtype=jnp.int32), 0), episodes=jnp.int32(batch),
             reached=carry.reached.sum(dtype=jnp.int32), distance=carry.closest.sum(),
             flip_resets=carry.env.flip_resets.sum(), cut_short=carry.cut.sum(dtype=jnp.int32),
+            cut_distance=jnp.where(carry.cut, carry.closest, 0.0).sum(),
         )
         return state.replace(replay=replay, env_steps=state.env_steps.add(steps)), totals
 

@@ -24,8 +24,8 @@ from mjx_emp.rollout.hierarchy import EpisodeEnd, Hierarchy, RolloutState, Rollo
 class CollectTotals:
     """Running sums over a collect call: primitive steps (int32, exact: one call is far below
     2^31 steps), transitions kept, first episodes, how many of those reached their goal, the
-    sum of their distances to goal, flip resets, and how many first episodes a reset cut
-    short (a flipped Ant or broken physics)."""
+    sum of their distances to goal, flip resets, how many first episodes a reset cut short (a
+    flipped Ant or broken physics), and the sum of those cut episodes' distances."""
 
     env_steps: jax.Array
     transitions: jax.Array
@@ -34,11 +34,13 @@ class CollectTotals:
     distance: jax.Array
     flip_resets: jax.Array
     cut_short: jax.Array
+    cut_distance: jax.Array
 
     @classmethod
     def zero(cls) -> CollectTotals:
         return cls(env_steps=jnp.int32(0), transitions=jnp.int32(0), episodes=jnp.int32(0), reached=jnp.int32(0),
-                   distance=jnp.zeros((), jnp.float32), flip_resets=jnp.int32(0), cut_short=jnp.int32(0))
+                   distance=jnp.zeros((), jnp.float32), flip_resets=jnp.int32(0), cut_short=jnp.int32(0),
+                   cut_distance=jnp.zeros((), jnp.float32))
 
     def add(self, stats: RolloutStats, transitions: jax.Array, first_episode: jax.Array,
             reached: jax.Array, distance: jax.Array, cut: jax.Array | None = None) -> CollectTotals:
@@ -54,6 +56,7 @@ class CollectTotals:
             distance=self.distance + jnp.where(first_episode, distance, 0.0).sum(),
             flip_resets=self.flip_resets + stats.flip_resets,
             cut_short=self.cut_short + (first_episode & cut).sum(),
+            cut_distance=self.cut_distance + jnp.where(first_episode & cut, distance, 0.0).sum(),
         )
 
     def success(self) -> jax.Array:
@@ -67,6 +70,12 @@ class CollectTotals:
     def mean_distance(self) -> jax.Array:
         """Mean distance to goal over first episodes (0 when none ended)."""
         return self.distance / jnp.maximum(self.episodes, 1)
+
+    def uncut_mean_distance(self) -> jax.Array:
+        """Mean distance to goal over first episodes no reset cut short (NaN when every one was
+        cut): what the distance is on the episodes a flip did not end."""
+        uncut = self.episodes - self.cut_short
+        return jnp.where(uncut > 0, (self.distance - self.cut_distance) / jnp.maximum(uncut, 1), jnp.nan)
 
 
 # (carry, transitions, episodes, stats) -> carry: what a caller keeps from one chunk.
