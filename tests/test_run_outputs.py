@@ -184,6 +184,8 @@ def test_eval_reports_every_level_and_phase2_and_aggregates_runs_as_seeds(traine
     assert phase2["cut_short"] == 0.0 and report["phase2"]["cut_short"]["count"] == 2  # a point mass never resets
     assert report["phase2"]["min_distance"]["count"] == 2 and report["phase2"]["min_distance"]["stderr"] == 0.0
     assert "mean min distance to goal" in result.stdout
+    assert report["phase2"]["uncut_min_distance"]["mean"] == pytest.approx(report["phase2"]["min_distance"]["mean"])
+    assert "mean min distance where no reset ended the episode" in result.stdout
     for policy in ("aimed", "aimed_half", "random"):  # the chaining diagnostic on the same goals
         assert 0.0 <= phase2[policy]["min_distance"] and phase2[policy]["episodes"] == 16
         assert report["phase2"][policy]["min_distance"]["count"] == 2
