@@ -8,7 +8,10 @@ absolute goal-space coordinates at three states: the start with the walls standi
 with them gone, and on the button (where pressing it leaves them gone). Each box says whether
 it lies within the walls and whether it holds the button, so one reads off what the paper's
 cage figures show: a box bounded by the walls that reaches toward the button, and one that
-outgrows the walls once they open.
+outgrows the walls once they open. Phase 2's greedy episodes are counted goal by goal
+(``cage["phase2"]``): how many goals lie beyond the walls (farther than eps outside them, so
+only a robot that left the cage can reach them), how many of those and of the others were
+reached, and how often an episode pressed the button.
 ``python experiments/cages.py --presets ant-cage-cpu-k1 --seeds 0``; rows merge into ``--out``.
 """
 
@@ -18,12 +21,14 @@ import dataclasses
 import json
 from pathlib import Path
 
+import jax
 import numpy as np
 import tyro
 from baselines import merge_row, train_or_resume, train_phase2
 from robots_cpu import loaded_run_row
 
-from mjx_emp.run import jobs
+from mjx_emp.rollout.hierarchy import jit_init_rollout, jit_rollout
+from mjx_emp.run import jobs, store
 
 
 @dataclasses.dataclass
@@ -88,6 +93,42 @@ def cage_figures(agent, state) -> dict:
             "button_half_size": half_size.tolist(), "boxes": boxes}
 
 
+def beyond_walls_counts(goal: np.ndarray, position: np.ndarray, live: np.ndarray, opened: np.ndarray,
+                       walls: tuple[list[float], list[float]], eps: float) -> dict:
+    """Phase-2 episodes goal by goal in a cage: ``goal`` [B, d] per episode, the robot's goal-space
+    ``position`` [T, B, d] and whether the cage was ``opened`` [T, B] at every step, ``live`` [T, B]
+    where the step belongs to the episode. A goal lies beyond the walls when it is more than eps
+    outside their inner bounds along some dimension, so reaching it (coming within eps) means
+    the robot left the cage. Returns the counts of goals within and beyond, of those reached,
+    and the fraction of episodes (and of episodes with a goal beyond) that pressed the button."""
+    distance = np.where(live, np.linalg.norm(position - goal[None], axis=-1), np.inf).min(axis=0)
+    reached = distance <= eps
+    beyond = np.any((goal > np.asarray(walls[1]) + eps) | (goal < np.asarray(walls[0]) - eps), axis=-1)
+    pressed = np.any(opened & live, axis=0)
+    return {"episodes": int(goal.shape[0]), "goals_beyond": int(beyond.sum()),
+            "reached_beyond": int((reached & beyond).sum()), "goals_within": int((~beyond).sum()),
+            "reached_within": int((reached & ~beyond).sum()), "opened": float(pressed.mean()),
+            "opened_beyond": float(pressed[beyond].mean()) if beyond.any() else None}
+
+
+def beyond_walls_figures(trainer, state, key: jax.Array, walls: tuple[list[float], list[float]],
+                         envs: int = 400) -> dict:
+    """:func:`beyond_walls_counts` of ``envs`` greedy phase-2 episodes (the first of each
+    environment) from the phase-2 ``trainer`` and ``state``; the cage's open flag is the
+    observation's last entry."""
+    plan = trainer.greedy_episodes(state)
+    steps = trainer.longest_episode + 1  # the longest episode fits, with its ending step
+    begin = jit_init_rollout(plan.hierarchy, plan.params, plan.start, plan.start_params, key, envs, plan.root)
+    _, transitions, episodes, _ = jit_rollout(plan.hierarchy, plan.params, plan.start, plan.start_params, begin, steps)
+    first_end = np.where(np.asarray(episodes.first_ended), np.arange(steps)[:, None], steps).min(axis=0)
+    bottom, top = jax.device_get(transitions[0]), jax.device_get(transitions[plan.root])
+    live = np.asarray(bottom.valid) & (np.arange(steps)[:, None] <= first_end[None, :])
+    next_obs = np.asarray(bottom.next_obs)
+    position = np.asarray(trainer.env.goal_of_obs(next_obs))
+    return beyond_walls_counts(np.asarray(top.goal)[0], position, live, next_obs[..., -1] > 0.5, walls,
+                               trainer.cfg.eps)
+
+
 def main(args: Args) -> None:
     out = Path(args.out)
     for preset in args.presets:
@@ -98,6 +139,12 @@ def main(args: Args) -> None:
             loaded = jobs.load_run(run_dir)
             agent, _, state = loaded
             row = {**loaded_run_row(run_dir, preset, seed, args.episodes, loaded), "cage": cage_figures(agent, state)}
+            phase2_dir = run_dir / store.PHASE2_SUBDIR
+            if (phase2_dir / store.CONFIG_FILE).exists():
+                trainer, _, phase2_state = jobs.load_phase2(phase2_dir)
+                walls = (row["cage"]["walls_lower"], row["cage"]["walls_upper"])
+                row["cage"]["phase2"] = beyond_walls_figures(trainer, phase2_state, jax.random.key(2000 + seed), walls,
+                                                             args.episodes)
             merge_row(out, row)
             cage = row["cage"]
             print(json.dumps({"preset": preset, "seed": seed, "env_steps": row["env_steps"],

@@ -2,12 +2,15 @@
 
 import dataclasses
 
+import jax
 import numpy as np
 import pytest
-from cages import absolute_box, cage_figures, wall_bounds
+from cages import absolute_box, beyond_walls_counts, beyond_walls_figures, cage_figures, wall_bounds
 
 from mjx_emp.algos.he.presets import PRESETS
 from mjx_emp.algos.registry import make_agent
+from mjx_emp.phase2.goal_spaces import Phase2Trainer
+from mjx_emp.phase2.presets import PHASE2_PRESETS
 
 
 def test_wall_bounds_of_the_ant_cage_are_its_four_walls():
@@ -51,3 +54,39 @@ def test_cage_figures_give_the_top_box_at_the_start_with_walls_up_and_gone_and_o
     closed = agent.goal_spaces(state)[-1]
     np.testing.assert_allclose(boxes["start_closed"]["upper"], start + np.add(closed["shift"], closed["half_width"]),
                                rtol=1e-5)
+
+
+def test_beyond_walls_counts_goals_only_a_robot_outside_the_cage_can_reach():
+    """Walls at +-4, eps 1: a goal at x = 6 is beyond them, one at x = 4.5 is not (within eps of
+    the wall line); an episode counts as reached where any live step comes within eps, and as
+    pressed where the cage was open at a live step."""
+    walls = ([-4.0, -4.0], [4.0, 4.0])
+    goal = np.array([[6.0, 0.0], [4.5, 0.0], [0.0, -7.0], [1.0, 1.0]])
+    position = np.zeros((3, 4, 2))
+    position[1, 0] = [5.5, 0.0]  # episode 0 reaches its goal beyond the walls, at step 1
+    position[2, 2] = [0.0, -6.5]  # episode 2 would reach its goal, but only after its episode ended
+    position[:, 3] = [1.2, 1.0]  # episode 3 sits on its goal inside
+    live = np.ones((3, 4), bool)
+    live[2, 2] = False
+    opened = np.zeros((3, 4), bool)
+    opened[1, 0] = True
+    opened[2, 2] = True  # not live: does not count
+    counts = beyond_walls_counts(goal, position, live, opened, walls, eps=1.0)
+    assert counts == {"episodes": 4, "goals_beyond": 2, "reached_beyond": 1, "goals_within": 2,
+                      "reached_within": 1, "opened": 0.25, "opened_beyond": 0.5}
+
+
+def test_beyond_walls_figures_count_greedy_phase_2_episodes_in_the_ant_cage():
+    """An untrained Ant-cage phase 2 (tiny networks): every episode is counted once, with its goal
+    from the phase-2 region."""
+    cfg = dataclasses.replace(PRESETS["ant-cage-cpu-k1"][1], num_envs=2, batch_size=8, hidden=(8, 8),
+                              replay_capacity=256, gs_replay_capacity=64, start_capacity=64)
+    agent = make_agent(cfg)
+    phase2_cfg = dataclasses.replace(PHASE2_PRESETS["ant-cage-cpu-k1"][2], n=2, num_envs=2, hidden=(8,),
+                                     replay_capacity=64, batch_size=8)
+    trainer = Phase2Trainer(agent, phase2_cfg)
+    state = trainer.init(agent.init())
+    walls = ([-4.0, -4.0], [4.0, 4.0])
+    counts = beyond_walls_figures(trainer, state, jax.random.key(0), walls, envs=6)
+    assert counts["episodes"] == 6 and counts["goals_within"] + counts["goals_beyond"] == 6
+    assert 0 <= counts["reached_beyond"] <= counts["goals_beyond"] and 0.0 <= counts["opened"] <= 1.0
