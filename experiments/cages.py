@@ -27,8 +27,8 @@ import tyro
 from baselines import merge_row, train_or_resume, train_phase2
 from robots_cpu import loaded_run_row
 
-from mjx_emp.rollout.hierarchy import jit_init_rollout, jit_rollout
 from mjx_emp.run import jobs, store
+from mjx_emp.run.evaluate import greedy_first_episodes
 
 
 @dataclasses.dataclass
@@ -116,13 +116,9 @@ def beyond_walls_figures(trainer, state, key: jax.Array, walls: tuple[list[float
     """:func:`beyond_walls_counts` of ``envs`` greedy phase-2 episodes (the first of each
     environment) from the phase-2 ``trainer`` and ``state``; the cage's open flag is the
     observation's last entry."""
-    plan = trainer.greedy_episodes(state)
-    steps = trainer.longest_episode + 1  # the longest episode fits, with its ending step
-    begin = jit_init_rollout(plan.hierarchy, plan.params, plan.start, plan.start_params, key, envs, plan.root)
-    _, transitions, episodes, _ = jit_rollout(plan.hierarchy, plan.params, plan.start, plan.start_params, begin, steps)
-    first_end = np.where(np.asarray(episodes.first_ended), np.arange(steps)[:, None], steps).min(axis=0)
-    bottom, top = jax.device_get(transitions[0]), jax.device_get(transitions[plan.root])
-    live = np.asarray(bottom.valid) & (np.arange(steps)[:, None] <= first_end[None, :])
+    transitions, first_end = greedy_first_episodes(trainer, state, key, envs)
+    bottom, top = transitions[0], transitions[-1]
+    live = np.asarray(bottom.valid) & (np.arange(bottom.valid.shape[0])[:, None] <= first_end[None, :])
     next_obs = np.asarray(bottom.next_obs)
     position = np.asarray(trainer.env.goal_of_obs(next_obs))
     return beyond_walls_counts(np.asarray(top.goal)[0], position, live, next_obs[..., -1] > 0.5, walls,
