@@ -117,7 +117,7 @@ def beyond_walls_figures(trainer, state, key: jax.Array, walls: tuple[list[float
     environment) from the phase-2 ``trainer`` and ``state``; the cage's open flag is the
     observation's last entry."""
     transitions, first_end = greedy_first_episodes(trainer, state, key, envs)
-    bottom, top = transitions[0], transitions[-1]
+    bottom, top = jax.device_get((transitions[0], transitions[-1]))
     live = np.asarray(bottom.valid) & (np.arange(bottom.valid.shape[0])[:, None] <= first_end[None, :])
     next_obs = np.asarray(bottom.next_obs)
     position = np.asarray(trainer.env.goal_of_obs(next_obs))

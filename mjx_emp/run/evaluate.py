@@ -71,19 +71,20 @@ def attempt_figures(trainer, state, key, envs: int = 64) -> list[dict]:
     ``top``). It tells skills that chain (progress on every attempt) from skills that work once
     from the initial state and then no more, e.g. because the first left the robot on its back."""
     transitions, first_end = greedy_first_episodes(trainer, state, key, envs)
-    return attempt_rows(trainer.env, transitions[-1], first_end, trainer.cfg.n)
+    return attempt_rows(trainer.env, jax.device_get(transitions[-1]), first_end, trainer.cfg.n)
 
 
 def greedy_first_episodes(trainer, state, key, envs: int) -> tuple[tuple, np.ndarray]:
     """``envs`` greedy phase-2 episodes (the trainer's policy on top) rolled out long enough for
-    each environment to finish its first: every level's transitions ([T, B] rows, on the host,
-    bottom level first) and the step at which each environment's first episode ends."""
+    each environment to finish its first: every level's transitions ([T, B] rows on the device,
+    bottom level first; a caller fetches the levels it reads) and the step at which each
+    environment's first episode ends."""
     plan = trainer.greedy_episodes(state)
     steps = trainer.longest_episode + 1  # the longest episode fits, with its ending step
     begin = jit_init_rollout(plan.hierarchy, plan.params, plan.start, plan.start_params, key, envs, plan.root)
     _, transitions, episodes, _ = jit_rollout(plan.hierarchy, plan.params, plan.start, plan.start_params, begin, steps)
     first_end = np.where(np.asarray(episodes.first_ended), np.arange(steps)[:, None], steps).min(axis=0)
-    return jax.device_get(tuple(transitions[: plan.root + 1])), first_end
+    return tuple(transitions[: plan.root + 1]), first_end
 
 
 def attempt_rows(env, top, first_end: np.ndarray, attempts: int) -> list[dict]:
