@@ -33,7 +33,8 @@ def test_absolute_box_is_placed_about_the_state_and_checked_against_walls_and_bu
     assert not out["within_walls"]
 
 
-@pytest.mark.parametrize("preset", ["ant-cage-cpu-k1", "half-cheetah-cage-cpu-k1"])
+@pytest.mark.parametrize("preset", ["ant-cage-cpu-k1", "half-cheetah-cage-cpu-k1", "ant-cage-cpu-k2",
+                                    "half-cheetah-cage-cpu-k2"])
 def test_cage_figures_give_the_top_box_at_the_start_with_walls_up_and_gone_and_on_the_button(preset):
     cfg = dataclasses.replace(PRESETS[preset][1], num_envs=2, batch_size=8, hidden=(8, 8), replay_capacity=256,
                               gs_replay_capacity=64, start_capacity=64)

@@ -124,6 +124,13 @@ HALF_CHEETAH_CPU_K2_REP4_TILT4 = dataclasses.replace(HALF_CHEETAH_CPU_K2_REP4, t
 # (docs/presets.md#the-cages-on-a-cpu).
 ANT_CAGE_CPU_K1 = dataclasses.replace(ANT_FIELD_CPU_K1_4ITER_LN, env="ant_cage")
 HALF_CHEETAH_CAGE_CPU_K1 = dataclasses.replace(HALF_CHEETAH_CPU_K1, env="half_cheetah_cage")
+# Their two-level twins: each field's two-level learner with level 0 four times per epoch, in the same cage,
+# stopped after the epoch that passes the one-level preset's env steps less about half a two-level epoch, so
+# both depths end on the same budget within about 1 %.
+ANT_CAGE_CPU_K2 = dataclasses.replace(ANT_FIELD_CPU_K2_4ITER_LN_REP4, env="ant_cage", epochs=1000,
+                                      max_env_steps=1_990_000)
+HALF_CHEETAH_CAGE_CPU_K2 = dataclasses.replace(HALF_CHEETAH_CPU_K2_REP4, env="half_cheetah_cage", epochs=1000,
+                                               max_env_steps=2_125_000)
 
 PRESETS: dict[str, tuple[str, HEConfig]] = {
     "point-mass-k1": ("CPU default: point mass, one level of n=10 skills", POINT_MASS_K1),
@@ -184,6 +191,10 @@ PRESETS: dict[str, tuple[str, HEConfig]] = {
                         ANT_CAGE_CPU_K1),
     "half-cheetah-cage-cpu-k1": ("CPU: half-cheetah-cpu-k1 in the Half Cheetah Cage (walls 8 m ahead and behind, "
                                  "a button that opens them)", HALF_CHEETAH_CAGE_CPU_K1),
+    "ant-cage-cpu-k2": ("CPU: ant-field-cpu-k2-4iter-ln-rep4 in the Ant Cage, on ant-cage-cpu-k1's env steps",
+                        ANT_CAGE_CPU_K2),
+    "half-cheetah-cage-cpu-k2": ("CPU: half-cheetah-cpu-k2-rep4 in the Half Cheetah Cage, on "
+                                 "half-cheetah-cage-cpu-k1's env steps", HALF_CHEETAH_CAGE_CPU_K2),
     "ant-field-small-k1": ("Table 1: Ant Field Small, k=1",
                            _paper("ant_field", (20,), (0.4,), (1.75,), (0.6,), 1220, (10.0,))),
     "ant-field-big-k1": ("Table 1: Ant Field Big, k=1",
