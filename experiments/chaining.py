@@ -23,7 +23,7 @@ import jax
 import tyro
 from baselines import merge_row, train_phase2
 
-from mjx_emp.metrics import PHASE2_DIAGNOSTICS
+from mjx_emp.metrics import PHASE2_DIAGNOSTICS, PHASE2_FIGURES
 from mjx_emp.run import jobs, store
 from mjx_emp.run.evaluate import attempt_figures, phase2_figures
 
@@ -51,10 +51,6 @@ OPTION_TAGS = {"learn_from_resets": "resets", "aim_prior": "aim", "aim_weight": 
 """Phase-2 options beyond the domain's preset, and the tag each adds (a number follows the tag of
 a number): phase 2 with options is trained into RUN_DIR/phase2-<tag>[-<tag>] and its rows'
 variant ends in +<tag>[+<tag>]."""
-
-
-PHASE2_FIGURES = ("min_distance", "success", "cut_short", "uncut_min_distance")
-"""Each policy's figures in a row, as ``<policy>_<figure>``."""
 
 
 def options_of(args: Args) -> dict:

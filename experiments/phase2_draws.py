@@ -4,8 +4,8 @@ The chaining diagnostic compares the learned phase-2 policy with the scripted on
 of 400 goals. This evaluates, for each given phase-1 run with a trained RUN_DIR/phase2, the
 learned policy and the ``aimed`` one on ``draws`` independent draws of ``episodes`` goals each
 (draw i uses key 7 + i, so draw 0 is the chaining diagnostic's), both policies on the same goals
-in each draw. A row per run holds each draw's mean minimum distance, success and fraction of
-episodes a flip ended, per policy, their mean, std and standard error over the draws, and the
+in each draw. A row per run holds each draw's phase-2 figures (`metrics.PHASE2_FIGURES`) per
+policy, their mean, std and standard error over the draws, and the
 learned-minus-aimed difference per draw (paired: the same goals). Rows are merged into ``--out``.
 
     python experiments/phase2_draws.py --runs runs/ant-s0 runs/ant-s1 --draws 3
@@ -20,7 +20,7 @@ import jax
 import tyro
 from baselines import merge_row
 
-from mjx_emp.metrics import mean_and_stderr
+from mjx_emp.metrics import mean_and_stderr, shared_phase2_figures
 from mjx_emp.run import jobs, store
 
 
@@ -38,13 +38,11 @@ class Args:
     out: str = "benchmarks/results/phase2_draws_cpu.json"
 
 
-FIGURES = ("min_distance", "success", "cut_short")
-
-
 def summarise(per_policy: dict[str, list[dict]]) -> dict:
     """Each policy's figures over the draws (mean, std, stderr), and where both were drawn the
     learned-minus-aimed difference of the minimum distance per draw (the same goals in a draw)."""
-    summary = {"summary": {policy: {figure: mean_and_stderr([d[figure] for d in rows]) for figure in FIGURES}
+    summary = {"summary": {policy: {figure: mean_and_stderr([d[figure] for d in rows])
+                                    for figure in shared_phase2_figures(rows)}
                            for policy, rows in per_policy.items()}}
     if {"learned", "aimed"} <= set(per_policy):
         differences = [a["min_distance"] - b["min_distance"] for a, b in zip(per_policy["learned"], per_policy["aimed"])]

@@ -103,15 +103,26 @@ subgoals aimed straight at the goal within the top box, the same within its cent
 (each half-width halved), and uniform in the box."""
 
 
+PHASE2_FIGURES = ("min_distance", "success", "cut_short", "uncut_min_distance")
+"""Phase 2's figures of one evaluation: the mean minimum distance to the goal, the success, the
+fraction of episodes a reset (a flip) cut short and the mean minimum distance over the others.
+Results written before the last two existed lack them, so readers take those where present."""
+
+
+def shared_phase2_figures(reports: Sequence[dict]) -> tuple[str, ...]:
+    """The :data:`PHASE2_FIGURES` every one of ``reports`` holds, in that order."""
+    return tuple(name for name in PHASE2_FIGURES if all(name in r for r in reports))
+
+
 def aggregate_phase2(reports: Sequence[dict]) -> dict:
-    """Mean and standard error over runs (seeds) of phase 2's mean minimum distance, success and
-    (where every report has them) the fraction of episodes a reset cut short and the mean minimum
-    distance over the episodes none cut."""
+    """Mean and standard error over runs (seeds) of each of :data:`PHASE2_FIGURES` that every
+    report holds (the minimum distance and the success always)."""
     if not reports:
         raise ValueError("aggregate_phase2 needs at least one report")
-    optional = tuple(name for name in ("cut_short", "uncut_min_distance") if all(name in r for r in reports))
-    names = ("min_distance", "success") + optional
-    figures = {name: mean_and_stderr([r[name] for r in reports]) for name in names}
+    missing = [name for name in PHASE2_FIGURES[:2] if not all(name in r for r in reports)]
+    if missing:
+        raise ValueError(f"aggregate_phase2: every report needs {missing}")
+    figures = {name: mean_and_stderr([r[name] for r in reports]) for name in shared_phase2_figures(reports)}
     for policy in PHASE2_DIAGNOSTICS:  # the chaining diagnostic's policies, where every run has them
         if all(policy in r for r in reports):
             figures[policy] = aggregate_phase2([r[policy] for r in reports])

@@ -120,6 +120,18 @@ def test_phase2_figures_aggregate_over_seeds():
     assert result["min_distance"]["mean"] == pytest.approx(0.4)
     assert result["min_distance"]["stderr"] == pytest.approx(0.2)  # std 0.283 / sqrt(2)
     assert result["success"]["count"] == 2
+    assert "cut_short" not in result  # figures an older report lacks are left out, not invented
+
+
+def test_phase2_aggregate_keeps_the_flip_split_only_where_every_report_has_it():
+    full = {"min_distance": 3.0, "success": 0.5, "cut_short": 0.2, "uncut_min_distance": 1.5}
+    both = aggregate_phase2([full, {**full, "cut_short": 0.4, "uncut_min_distance": 2.5}])
+    assert both["cut_short"]["mean"] == pytest.approx(0.3)
+    assert both["uncut_min_distance"]["mean"] == pytest.approx(2.0)
+    older = aggregate_phase2([full, {"min_distance": 1.0, "success": 1.0, "cut_short": 0.0}])
+    assert older["cut_short"]["mean"] == pytest.approx(0.1) and "uncut_min_distance" not in older
+    with pytest.raises(ValueError, match="success"):
+        aggregate_phase2([{"min_distance": 1.0}])
 
 
 def test_phase2_curves_plot_marks_eps(tmp_path):
