@@ -142,13 +142,23 @@ def evaluate_run(run_dir: Path, preset: str, seed: int) -> dict:
     }
 
 
+def phase2_evaluation(run_dir: Path, seed: int, episodes: int = 400, loaded: tuple | None = None) -> dict | None:
+    """The paper's phase-2 figures of RUN_DIR/phase2 (or of its ``loaded`` trainer, epoch and
+    state), as `mjx-emp eval` reports them on the seed's goals, or None where the run has no phase 2."""
+    if loaded is None:
+        phase2_dir = run_dir / store.PHASE2_SUBDIR
+        if not (phase2_dir / store.CONFIG_FILE).exists():
+            return None
+        loaded = jobs.load_phase2(phase2_dir)
+    return phase2_figures(*loaded, jax.random.key(1000 + seed), episodes)
+
+
 def phase2_of(run_dir: Path, seed: int, episodes: int = 400) -> dict:
-    """RUN_DIR/phase2's figures (mean minimum distance, success, the fraction of episodes a flip
-    ended early, the training curve), or None where it has none."""
-    phase2_dir = run_dir / store.PHASE2_SUBDIR
-    if not (phase2_dir / store.CONFIG_FILE).exists():
+    """RUN_DIR/phase2's figures as a comparison row's fields (mean minimum distance, success, the
+    fraction of episodes a flip ended early, the training curve), each None where it has none."""
+    figures = phase2_evaluation(run_dir, seed, episodes)
+    if figures is None:
         return {"phase2_min_distance": None, "phase2_success": None, "phase2_cut_short": None, "phase2_curve": None}
-    figures = phase2_figures(*jobs.load_phase2(phase2_dir), jax.random.key(1000 + seed), episodes)
     steps, distances = phase2_curve(run_dir)
     return {"phase2_min_distance": figures["min_distance"], "phase2_success": figures["success"],
             "phase2_cut_short": figures["cut_short"],

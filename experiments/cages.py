@@ -134,10 +134,12 @@ def main(args: Args) -> None:
                 train_phase2(run_dir)
             loaded = jobs.load_run(run_dir)
             agent, _, state = loaded
-            row = {**loaded_run_row(run_dir, preset, seed, args.episodes, loaded), "cage": cage_figures(agent, state)}
             phase2_dir = run_dir / store.PHASE2_SUBDIR
-            if (phase2_dir / store.CONFIG_FILE).exists():
-                trainer, _, phase2_state = jobs.load_phase2(phase2_dir)
+            phase2_loaded = jobs.load_phase2(phase2_dir) if (phase2_dir / store.CONFIG_FILE).exists() else None
+            row = {**loaded_run_row(run_dir, preset, seed, args.episodes, loaded, phase2_loaded),
+                   "cage": cage_figures(agent, state)}
+            if phase2_loaded is not None:
+                trainer, _, phase2_state = phase2_loaded
                 walls = (row["cage"]["walls_lower"], row["cage"]["walls_upper"])
                 row["cage"]["phase2"] = beyond_walls_figures(trainer, phase2_state, jax.random.key(2000 + seed), walls,
                                                              args.episodes)

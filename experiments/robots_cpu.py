@@ -21,10 +21,10 @@ from pathlib import Path
 
 import jax
 import tyro
-from baselines import merge_row, train_or_resume
+from baselines import merge_row, phase2_evaluation, train_or_resume
 
-from mjx_emp.run import jobs, store
-from mjx_emp.run.evaluate import phase1_figures, phase2_figures
+from mjx_emp.run import jobs
+from mjx_emp.run.evaluate import phase1_figures
 from mjx_emp.run.store import read_metrics
 
 
@@ -67,9 +67,11 @@ def evaluate_run(run_dir: Path, preset: str, seed: int, episodes: int, epoch: in
     return loaded_run_row(run_dir, preset, seed, episodes, jobs.load_run(run_dir, epoch=epoch))
 
 
-def loaded_run_row(run_dir: Path, preset: str, seed: int, episodes: int, loaded: tuple) -> dict:
+def loaded_run_row(run_dir: Path, preset: str, seed: int, episodes: int, loaded: tuple,
+                   phase2_loaded: tuple | None = None) -> dict:
     """``evaluate_run``'s row from a run already loaded by ``jobs.load_run`` (trainer, epoch,
-    state), for callers that need the loaded agent too and should not restore it twice."""
+    state), for callers that need the loaded agent too and should not restore it twice; likewise
+    its phase 2 when ``phase2_loaded`` (``jobs.load_phase2``'s tuple) is given."""
     trainer, epoch, state = loaded
     figures = phase1_figures(trainer, state, jax.random.key(1000 + seed), episodes)
     metrics = [m for m in read_metrics(run_dir) if m["epoch"] <= epoch]
@@ -85,17 +87,9 @@ def loaded_run_row(run_dir: Path, preset: str, seed: int, episodes: int, loaded:
         "levels": figures["levels"],
         "curve": top_curve(metrics),
         "gc_critic_loss": critic_loss_curve(metrics),
-        "phase2": phase2_of(run_dir, seed, episodes),
+        "phase2": phase2_evaluation(run_dir, seed, episodes, phase2_loaded),
         "config": dataclasses.asdict(trainer.cfg),
     }
-
-
-def phase2_of(run_dir: Path, seed: int, episodes: int) -> dict | None:
-    """The paper's phase-2 figure of RUN_DIR/phase2, as `mjx-emp eval` reports it, or None."""
-    phase2_dir = run_dir / store.PHASE2_SUBDIR
-    if not (phase2_dir / store.CONFIG_FILE).exists():
-        return None
-    return phase2_figures(*jobs.load_phase2(phase2_dir), jax.random.key(1000 + seed), episodes)
 
 
 def main(args: Args) -> None:
