@@ -81,8 +81,7 @@ def cage_figures(agent, state) -> dict:
     walls = wall_bounds(np.asarray(env.home_mocap_pos)[list(cage.wall_mocap_ids)], len(dims))
     centre, half_size = np.asarray(cage.button_center), np.asarray(cage.button_half_size)
     start = np.asarray(agent.initial_obs)
-    opened = start.copy()
-    opened[-1] = 1.0  # the observation's last entry: whether the walls are gone
+    opened = env.obs_with_cage_open(start, True)
     on_button = opened.copy()
     on_button[dims] = centre
     boxes = {}
@@ -114,14 +113,13 @@ def beyond_walls_counts(goal: np.ndarray, position: np.ndarray, live: np.ndarray
 def beyond_walls_figures(trainer, state, key: jax.Array, walls: tuple[list[float], list[float]],
                          envs: int = 400) -> dict:
     """:func:`beyond_walls_counts` of ``envs`` greedy phase-2 episodes (the first of each
-    environment) from the phase-2 ``trainer`` and ``state``; the cage's open flag is the
-    observation's last entry."""
+    environment) from the phase-2 ``trainer`` and ``state``."""
     transitions, first_end = greedy_first_episodes(trainer, state, key, envs)
     bottom, top = jax.device_get((transitions[0], transitions[-1]))
     live = np.asarray(bottom.valid) & (np.arange(bottom.valid.shape[0])[:, None] <= first_end[None, :])
     next_obs = np.asarray(bottom.next_obs)
     position = np.asarray(trainer.env.goal_of_obs(next_obs))
-    return beyond_walls_counts(np.asarray(top.goal)[0], position, live, next_obs[..., -1] > 0.5, walls,
+    return beyond_walls_counts(np.asarray(top.goal)[0], position, live, trainer.env.cage_open_of_obs(next_obs), walls,
                                trainer.cfg.eps)
 
 

@@ -46,8 +46,8 @@ def test_cage_figures_give_the_top_box_at_the_start_with_walls_up_and_gone_and_o
     boxes = figures["boxes"]
     assert set(boxes) == {"start_closed", "start_open", "on_button"}
     button = np.asarray(figures["button_center"])
-    on_button = np.asarray(agent.initial_obs).copy()
-    on_button[-1], on_button[dims] = 1.0, button  # the walls gone, the torso on the button
+    on_button = agent.env.obs_with_cage_open(np.asarray(agent.initial_obs), True)
+    on_button[dims] = button  # the walls gone, the torso on the button
     top = agent.goal_spaces(state, on_button)[-1]
     np.testing.assert_allclose(boxes["on_button"]["lower"], button + np.subtract(top["shift"], top["half_width"]),
                                rtol=1e-5)

@@ -221,7 +221,7 @@ def test_the_button_opens_the_cage_and_the_latch_ignores_presses_outside_it_and_
     on_button = env.reset_to(jax.random.key(0), jnp.asarray(center))
     assert not bool(env.cage_open(on_button))  # closed until a step finds the torso on the button
     opened = step(on_button, jnp.zeros(env.action_size))
-    assert bool(env.cage_open(opened)) and float(env.observe(opened)[-1]) == 1.0
+    assert bool(env.cage_open(opened)) and bool(env.cage_open_of_obs(env.observe(opened)))
     walls = np.asarray(opened.data.mocap_pos)[list(env.cage.wall_mocap_ids)]
     assert np.all(np.linalg.norm(walls, axis=-1) > 1000.0)  # the walls are moved out of the way
     assert not bool(env.cage_open(env.reset(jax.random.key(1))))  # a new episode closes the cage again
@@ -230,7 +230,19 @@ def test_the_button_opens_the_cage_and_the_latch_ignores_presses_outside_it_and_
     moved = opened.replace(data=opened.data.replace(qpos=far))
     for _ in range(3):
         moved = step(moved, jnp.zeros(env.action_size))
-    assert bool(env.cage_open(moved)) and float(env.observe(moved)[-1]) == 1.0
+    assert bool(env.cage_open(moved)) and bool(env.cage_open_of_obs(env.observe(moved)))
+
+
+def test_an_observation_with_the_cage_opened_restores_a_state_with_the_walls_gone():
+    env = make_env("ant_cage")
+    start = np.asarray(env.observe(env.reset(jax.random.key(0))))
+    assert not bool(env.cage_open_of_obs(start))
+    opened = env.obs_with_cage_open(start, True)
+    assert bool(env.cage_open_of_obs(opened)) and not bool(env.cage_open_of_obs(start))  # a copy, start untouched
+    assert bool(env.cage_open(env.restore(jax.random.key(1), jnp.asarray(opened))))
+    assert not bool(env.cage_open(env.restore(jax.random.key(1), jnp.asarray(start))))
+    with pytest.raises(ValueError, match="'ant_field' has no cage"):
+        make_env("ant_field").cage_open_of_obs(start)
 
 
 def test_physics_overrides_reach_the_model_and_bad_ones_name_their_field():

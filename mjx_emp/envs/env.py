@@ -136,7 +136,7 @@ class Env:
         dtype = self.template.qpos.dtype
         data = self.template.replace(qpos=obs[:nq].astype(dtype), qvel=obs[nq : nq + nv].astype(dtype))
         if self.cage is not None:
-            data = data.replace(mocap_pos=self._wall_positions(obs[-1] > 0.5))
+            data = data.replace(mocap_pos=self._wall_positions(self.cage_open_of_obs(obs)))
         return EnvState(data=data, key=key, **_no_resets())
 
     def upright(self, data: mjx.Data) -> jax.Array:
@@ -262,6 +262,21 @@ class Env:
         if self.cage is None:
             return jnp.zeros((), bool)
         return jnp.any(state.data.mocap_pos != jnp.asarray(self.home_mocap_pos))
+
+    def cage_open_of_obs(self, obs: jax.Array) -> jax.Array:
+        """Whether the walls are gone in observations ``obs`` [..., obs_size]: the flag
+        :meth:`observe` appends in a cage (NumPy in, NumPy out)."""
+        if self.cage is None:
+            raise ValueError(f"env: {self.name!r} has no cage, so its observations carry no open flag")
+        return obs[..., -1] > 0.5
+
+    def obs_with_cage_open(self, obs: np.ndarray, is_open: bool) -> np.ndarray:
+        """A copy of the host observation ``obs`` with the cage's walls gone (or standing)."""
+        if self.cage is None:
+            raise ValueError(f"env: {self.name!r} has no cage, so its observations carry no open flag")
+        changed = np.array(obs, copy=True)
+        changed[..., -1] = float(is_open)
+        return changed
 
     def _wall_positions(self, is_open: jax.Array) -> jax.Array:
         """Mocap positions of a closed cage, or of an open one (walls moved far out)."""
