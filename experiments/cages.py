@@ -3,8 +3,9 @@
 For every (preset, seed) (``ant-cage-cpu-k1``, ``half-cheetah-cage-cpu-k1``) trains phase 1
 and phase 2 as ``baselines.py`` does (or resumes BASE/<preset>-s<seed>) and writes
 ``robots_cpu.py``'s row (top box, success, coverage, the box's growth per epoch in ``curve``,
-phase 2) with ``cage``: the walls' inner bounds and the button, and the top goal-space box in
-absolute goal-space coordinates at three states: the start with the walls standing, the start
+phase 2) with ``cage``: the walls' inner bounds and the button, and every level's goal-space box
+(the top one as ``boxes``, all from level 0 up as ``level_boxes``) in absolute goal-space
+coordinates at three states: the start with the walls standing, the start
 with them gone, and on the button (where pressing it leaves them gone). Each box says whether
 it lies within the walls and whether it holds the button, so one reads off what the paper's
 cage figures show: a box bounded by the walls that reaches toward the button, and one that
@@ -72,8 +73,9 @@ def absolute_box(box: dict, position: np.ndarray, walls: tuple[list[float], list
 
 
 def cage_figures(agent, state) -> dict:
-    """The cage and the agent's top box at the start (walls up), at the start with the walls
-    gone, and on the button (walls gone), in absolute goal-space coordinates."""
+    """The cage and the agent's goal-space boxes at the start (walls up), at the start with the
+    walls gone, and on the button (walls gone), in absolute goal-space coordinates: ``boxes``
+    for the top level, ``level_boxes`` for every level from 0 up (the top one repeated)."""
     env, cage = agent.env, agent.env.cage
     if cage is None:
         raise SystemExit(f"presets: {agent.cfg.env!r} has no cage; give a cage preset")
@@ -84,12 +86,12 @@ def cage_figures(agent, state) -> dict:
     opened = env.obs_with_cage_open(start, True)
     on_button = opened.copy()
     on_button[dims] = centre
-    boxes = {}
+    level_boxes = [{} for _ in range(agent.cfg.k)]
     for name, obs in (("start_closed", start), ("start_open", opened), ("on_button", on_button)):
-        top = agent.goal_spaces(state, obs)[-1]
-        boxes[name] = absolute_box(top, obs[dims], walls, centre, half_size)
+        for level, box in enumerate(agent.goal_spaces(state, obs)):
+            level_boxes[level][name] = absolute_box(box, obs[dims], walls, centre, half_size)
     return {"walls_lower": walls[0], "walls_upper": walls[1], "button_center": centre.tolist(),
-            "button_half_size": half_size.tolist(), "boxes": boxes}
+            "button_half_size": half_size.tolist(), "boxes": level_boxes[-1], "level_boxes": level_boxes}
 
 
 def beyond_walls_counts(goal: np.ndarray, position: np.ndarray, live: np.ndarray, opened: np.ndarray,

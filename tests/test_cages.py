@@ -55,6 +55,11 @@ def test_cage_figures_give_the_top_box_at_the_start_with_walls_up_and_gone_and_o
     closed = agent.goal_spaces(state)[-1]
     np.testing.assert_allclose(boxes["start_closed"]["upper"], start + np.add(closed["shift"], closed["half_width"]),
                                rtol=1e-5)
+    levels = figures["level_boxes"]
+    assert len(levels) == agent.cfg.k and levels[-1] == boxes
+    bottom = agent.goal_spaces(state)[0]
+    np.testing.assert_allclose(levels[0]["start_closed"]["lower"], start + np.subtract(bottom["shift"],
+                                                                                       bottom["half_width"]), rtol=1e-5)
 
 
 def test_beyond_walls_counts_goals_only_a_robot_outside_the_cage_can_reach():
