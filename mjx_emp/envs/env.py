@@ -263,7 +263,7 @@ class Env:
             return jnp.zeros((), bool)
         return jnp.any(state.data.mocap_pos != jnp.asarray(self.home_mocap_pos))
 
-    def cage_open_of_obs(self, obs: jax.Array) -> jax.Array:
+    def cage_open_of_obs(self, obs: jax.Array | np.ndarray) -> jax.Array | np.ndarray:
         """Whether the walls are gone in observations ``obs`` [..., obs_size]: the flag
         :meth:`observe` appends in a cage (NumPy in, NumPy out)."""
         if self.cage is None:
