@@ -145,9 +145,10 @@ def main(args: Args) -> None:
                                                              args.episodes)
             merge_row(out, row)
             cage = row["cage"]
+            phase2_distance = row["phase2"] and row["phase2"]["min_distance"]
             print(json.dumps({"preset": preset, "seed": seed, "env_steps": row["env_steps"],
                               "top_area": row["top_area"], "success": row["success"],
-                              "phase2": row["phase2"] and row["phase2"]["min_distance"], **cage}), flush=True)
+                              "phase2_min_distance": phase2_distance, **cage}), flush=True)
     print(f"wrote {out}")
 
 
