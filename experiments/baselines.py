@@ -146,11 +146,8 @@ def phase2_evaluation(run_dir: Path, seed: int, episodes: int = 400, loaded: tup
     """The paper's phase-2 figures of RUN_DIR/phase2 (or of its ``loaded`` trainer, epoch and
     state), as `mjx-emp eval` reports them on the seed's goals, or None where the run has no phase 2."""
     if loaded is None:
-        phase2_dir = run_dir / store.PHASE2_SUBDIR
-        if not (phase2_dir / store.CONFIG_FILE).exists():
-            return None
-        loaded = jobs.load_phase2(phase2_dir)
-    return phase2_figures(*loaded, jax.random.key(1000 + seed), episodes)
+        loaded = jobs.load_run_phase2(run_dir)
+    return None if loaded is None else phase2_figures(*loaded, jax.random.key(1000 + seed), episodes)
 
 
 def phase2_of(run_dir: Path, seed: int, episodes: int = 400) -> dict:

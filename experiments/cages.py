@@ -28,7 +28,7 @@ import tyro
 from baselines import merge_row, train_or_resume, train_phase2
 from robots_cpu import loaded_run_row
 
-from mjx_emp.run import jobs, store
+from mjx_emp.run import jobs
 from mjx_emp.run.evaluate import greedy_first_episodes
 
 
@@ -134,8 +134,7 @@ def main(args: Args) -> None:
                 train_phase2(run_dir)
             loaded = jobs.load_run(run_dir)
             agent, _, state = loaded
-            phase2_dir = run_dir / store.PHASE2_SUBDIR
-            phase2_loaded = jobs.load_phase2(phase2_dir) if (phase2_dir / store.CONFIG_FILE).exists() else None
+            phase2_loaded = jobs.load_run_phase2(run_dir)
             row = {**loaded_run_row(run_dir, preset, seed, args.episodes, loaded, phase2_loaded),
                    "cage": cage_figures(agent, state)}
             if phase2_loaded is not None:

@@ -195,13 +195,13 @@ def check_eval(exp: EvalExperiment) -> None:
 def phase2_report(run_dir: Path, key, episodes: int) -> dict | None:
     """RUN_DIR/phase2's figures, None without one; a phase-2 folder that cannot be loaded is
     reported on stderr and skipped, so it never blocks the phase-1 evaluation."""
-    phase2_dir = Path(run_dir) / store.PHASE2_SUBDIR
-    if not (phase2_dir / store.CONFIG_FILE).exists():
-        return None
     try:
-        loaded = jobs.load_phase2(phase2_dir)
+        loaded = jobs.load_run_phase2(run_dir)
     except (ConfigError, CheckpointError) as err:
-        print(f"mjx-emp: {phase2_dir} is unusable, its phase 2 is left out: {err}", file=sys.stderr, flush=True)
+        print(f"mjx-emp: {Path(run_dir) / store.PHASE2_SUBDIR} is unusable, its phase 2 is left out: {err}",
+              file=sys.stderr, flush=True)
+        return None
+    if loaded is None:
         return None
     from mjx_emp.run.evaluate import phase2_figures
 

@@ -266,17 +266,19 @@ class Env:
     def cage_open_of_obs(self, obs: jax.Array | np.ndarray) -> jax.Array | np.ndarray:
         """Whether the walls are gone in observations ``obs`` [..., obs_size]: the flag
         :meth:`observe` appends in a cage (NumPy in, NumPy out)."""
-        if self.cage is None:
-            raise ValueError(f"env: {self.name!r} has no cage, so its observations carry no open flag")
+        self._require_cage()
         return obs[..., -1] > 0.5
 
     def obs_with_cage_open(self, obs: np.ndarray, is_open: bool) -> np.ndarray:
         """A copy of the host observation ``obs`` with the cage's walls gone (or standing)."""
-        if self.cage is None:
-            raise ValueError(f"env: {self.name!r} has no cage, so its observations carry no open flag")
+        self._require_cage()
         changed = np.array(obs, copy=True)
         changed[..., -1] = float(is_open)
         return changed
+
+    def _require_cage(self) -> None:
+        if self.cage is None:
+            raise ValueError(f"env: {self.name!r} has no cage, so its observations carry no open flag")
 
     def _wall_positions(self, is_open: jax.Array) -> jax.Array:
         """Mocap positions of a closed cage, or of an open one (walls moved far out)."""

@@ -322,6 +322,15 @@ def load_phase2(phase2_dir: Path, fallback: bool = False, stops: dict | None = N
     return trainer, epoch, state
 
 
+def load_run_phase2(run_dir: Path) -> tuple | None:
+    """A phase-1 run's own phase 2 (RUN_DIR/phase2) as :func:`load_phase2` gives it, or None
+    where the run has none, for evaluations that report phase 2 beside phase 1."""
+    phase2_dir = Path(run_dir) / PHASE2_SUBDIR
+    if not (phase2_dir / CONFIG_FILE).exists():
+        return None
+    return load_phase2(phase2_dir)
+
+
 def resume_phase2(exp: ResumeExperiment, film: Film | None = None):
     """Continue a phase-2 directory from its newest good checkpoint; returns the final state."""
     return _resume(exp, functools.partial(load_phase2, writer=True), _phase2_without_checkpoint, film)
