@@ -1,5 +1,6 @@
 """The README's and docs' relative links lead somewhere: the file exists, and a #fragment names a heading."""
 
+import functools
 import re
 from pathlib import Path
 
@@ -18,8 +19,10 @@ def heading_anchor(heading: str) -> str:
     return text.replace(" ", "-")
 
 
-def page_anchors(page: Path) -> set[str]:
-    """Every heading anchor of a markdown page; repeated headings get GitHub's -1, -2 suffixes."""
+@functools.cache
+def page_anchors(page: Path) -> frozenset[str]:
+    """Every heading anchor of a markdown page; repeated headings get GitHub's -1, -2 suffixes.
+    Read once per page, however many links name it."""
     anchors, seen = set(), {}
     for line in FENCED.sub("", page.read_text()).splitlines():
         match = HEADING.match(line)
@@ -28,7 +31,7 @@ def page_anchors(page: Path) -> set[str]:
             count = seen.get(anchor, 0)
             seen[anchor] = count + 1
             anchors.add(anchor if count == 0 else f"{anchor}-{count}")
-    return anchors
+    return frozenset(anchors)
 
 
 def relative_links(page: Path) -> list[str]:
