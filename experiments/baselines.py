@@ -30,7 +30,7 @@ import tyro
 from mjx_emp.algos.registry import GOAL_SPACES, algorithm_of, all_presets, skill_kind
 from mjx_emp.commands import Phase2Experiment, ResumeExperiment, TrainExperiment
 from mjx_emp.envs.registry import DOMAINS
-from mjx_emp.metrics import coverage_cells, mean_and_stderr
+from mjx_emp.metrics import PHASE2_DIAGNOSTICS, PHASE2_REQUIRED_FIGURES, coverage_cells, mean_and_stderr
 from mjx_emp.phase2.presets import PHASE2_PRESETS, phase2_preset_for
 from mjx_emp.run import jobs, store
 from mjx_emp.run.evaluate import COVERAGE_SKILLS, phase2_figures, skill_figures
@@ -152,13 +152,18 @@ def phase2_evaluation(run_dir: Path, seed: int, episodes: int = 400, loaded: tup
 
 def phase2_of(run_dir: Path, seed: int, episodes: int = 400) -> dict:
     """RUN_DIR/phase2's figures as a comparison row's fields (mean minimum distance, success, the
-    fraction of episodes a flip ended early, the training curve), each None where it has none."""
+    fraction of episodes a flip ended early, the training curve), each None where it has none;
+    where the skills have a goal space, also the scripted policies' minimum distance and success
+    on the same goals (``phase2_aimed_min_distance``, ``phase2_random_success``, ...: the
+    chaining diagnostic of :data:`mjx_emp.metrics.PHASE2_DIAGNOSTICS`)."""
     figures = phase2_evaluation(run_dir, seed, episodes)
     if figures is None:
         return {"phase2_min_distance": None, "phase2_success": None, "phase2_cut_short": None, "phase2_curve": None}
     steps, distances = phase2_curve(run_dir)
+    scripted = {f"phase2_{policy}_{name}": figures[policy][name]
+                for policy in PHASE2_DIAGNOSTICS if policy in figures for name in PHASE2_REQUIRED_FIGURES}
     return {"phase2_min_distance": figures["min_distance"], "phase2_success": figures["success"],
-            "phase2_cut_short": figures["cut_short"],
+            "phase2_cut_short": figures["cut_short"], **scripted,
             "phase2_curve": [[float(a), float(b)] for a, b in zip(steps, distances)]}
 
 
@@ -205,8 +210,9 @@ def report_table(rows: list[dict]) -> str:
         return f"{m['mean']:{digits}} ± {m['std']:.2g} ({m['stderr']:.2g})"
 
     lines = ["| preset | seeds | env steps | wall s (mean) | coverage cells | coverage draws per seed | posterior std | "
-             "phase-2 min distance (m) | phase-2 success | phase-2 episodes a flip ended |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+             "phase-2 min distance (m) | phase-2 success | phase-2 episodes a flip ended | "
+             "aimed subgoals' min distance (m) |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for preset in dict.fromkeys(r["preset"] for r in rows):
         mine = [r for r in rows if r["preset"] == preset]
         stds = [r["posterior_std"] for r in mine if r["posterior_std"] is not None]
@@ -217,7 +223,8 @@ def report_table(rows: list[dict]) -> str:
             f"| {f'{np.mean(stds):.3g}' if stds else '-'} "
             f"| {cell([r['phase2_min_distance'] for r in done])} "
             f"| {cell([r['phase2_success'] for r in done], '.2f')} "
-            f"| {cell([r['phase2_cut_short'] for r in done if r.get('phase2_cut_short') is not None], '.2f')} |")
+            f"| {cell([r['phase2_cut_short'] for r in done if r.get('phase2_cut_short') is not None], '.2f')} "
+            f"| {cell([r['phase2_aimed_min_distance'] for r in done if 'phase2_aimed_min_distance' in r])} |")
     return "\n".join(lines)
 
 

@@ -20,11 +20,12 @@ def test_report_table_gives_mean_std_and_standard_error_per_preset():
     a_line = next(line for line in lines if line.startswith("| a |"))
     assert "| 2 |" in a_line and "4 ± 2.8 (2)" in a_line and "11 ± 1.4 (1)" in a_line
     b_line = next(line for line in lines if line.startswith("| b |"))
-    assert b_line.endswith("| - | - | - |")  # no phase 2 trained
-    assert a_line.endswith("| - |")  # rows without a flip fraction (older results) leave its column empty
-    flips = [{**_row("c", seed, 1e6, 2, 3.0), "phase2_cut_short": cut} for seed, cut in ((0, 0.1), (1, 0.3))]
+    assert b_line.endswith("| - | - | - | - |")  # no phase 2 trained
+    assert a_line.endswith("| - | - |")  # rows without a flip fraction or an aimed figure (older results)
+    flips = [{**_row("c", seed, 1e6, 2, 3.0), "phase2_cut_short": cut, "phase2_aimed_min_distance": aimed}
+             for seed, cut, aimed in ((0, 0.1, 2.0), (1, 0.3, 4.0))]
     c_line = next(line for line in report_table(flips).splitlines() if line.startswith("| c |"))
-    assert c_line.endswith("| 0.20 ± 0.14 (0.1) |")
+    assert c_line.endswith("| 0.20 ± 0.14 (0.1) | 3 ± 1.4 (1) |")
 
 
 def test_charts_draw_methods_with_and_without_phase2_curves(tmp_path):

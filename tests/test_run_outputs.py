@@ -195,6 +195,16 @@ def test_eval_reports_every_level_and_phase2_and_aggregates_runs_as_seeds(traine
     assert "2 run(s); mean ± sample std (se: standard error) over runs" in result.stdout
 
 
+def test_a_comparison_row_carries_the_scripted_policies_figures_beside_the_learned_ones(trained_run, phase2_run):
+    from baselines import phase2_of
+
+    row = phase2_of(trained_run, seed=0, episodes=16)
+    assert row["phase2_min_distance"] >= 0.0 and len(row["phase2_curve"]) == 2  # one point per phase-2 epoch
+    for policy in ("aimed", "aimed_half", "random"):  # the chaining diagnostic on the same goals
+        assert row[f"phase2_{policy}_min_distance"] >= 0.0 and 0.0 <= row[f"phase2_{policy}_success"] <= 1.0
+    assert row["phase2_random_min_distance"] != row["phase2_aimed_min_distance"]  # a different policy, not a copy
+
+
 def test_an_export_keeps_the_skills_without_the_replay_and_phase_2_reads_it(trained_run, phase2_run, tmp_path):
     out = tmp_path / "skills"
     result = run_cli("export", str(trained_run), "--out", str(out))
