@@ -10,7 +10,9 @@ distance to goal on 400 goals. Rows carry ``algo``, ``env``, ``preset``, ``seed`
 ``env_steps``, ``wall_s`` (phase-1 training time summed from the run's metrics, compile
 included), ``coverage_cells``, ``posterior_std``, ``phase2_min_distance``,
 ``phase2_success``, ``phase2_cut_short`` (the fraction of phase-2 episodes a flip ended early)
-and ``phase2_curve`` (phase-2 env steps and greedy mean minimum distance per epoch).
+``phase2_curve`` (phase-2 env steps and greedy mean minimum distance per epoch) and, for HE
+and GCRL, the chaining diagnostic's scripted policies on the same goals
+(``phase2_aimed_min_distance``, ``phase2_random_success``, ...).
 ``python experiments/baselines.py --presets point-mass-k1 metra-point-mass --seeds 0 1 2 3``;
 rows are merged into ``--out``.
 """
