@@ -9,7 +9,7 @@ DIAYN and HIDIO the posterior's mean standard deviation, and phase 2's mean mini
 distance to goal on 400 goals. Rows carry ``algo``, ``env``, ``preset``, ``seed``,
 ``env_steps``, ``wall_s`` (phase-1 training time summed from the run's metrics, compile
 included), ``coverage_cells``, ``posterior_std``, ``phase2_min_distance``,
-``phase2_success``, ``phase2_cut_short`` (the fraction of phase-2 episodes a flip ended early)
+``phase2_success``, ``phase2_cut_short`` (the fraction of phase-2 episodes a flip ended early),
 ``phase2_curve`` (phase-2 env steps and greedy mean minimum distance per epoch) and, for HE
 and GCRL, the chaining diagnostic's scripted policies on the same goals
 (``phase2_aimed_min_distance``, ``phase2_random_success``, ...).
