@@ -13,7 +13,8 @@ outgrows the walls once they open. Phase 2's greedy episodes are counted goal by
 (``cage["phase2"]``): how many goals lie beyond the walls (farther than eps outside them, so
 only a robot that left the cage can reach them), how many of those and of the others were
 reached, and how often an episode pressed the button.
-``python experiments/cages.py --presets ant-cage-cpu-k1 --seeds 0``; rows merge into ``--out``.
+``python experiments/cages.py --presets ant-cage-cpu-k1 --seeds 0``; rows merge into ``--out``, and
+``--report-only`` prints the table of every row there.
 """
 
 from __future__ import annotations
@@ -46,6 +47,8 @@ class Args:
     episodes: int = 400
     base: str = "runs/cages"
     out: str = "benchmarks/results/cages_cpu.json"
+    report_only: bool = False
+    """Train and evaluate nothing: print the table of the rows in ``--out``."""
 
 
 def wall_bounds(wall_positions: np.ndarray, dims: int) -> tuple[list[float], list[float]]:
@@ -125,8 +128,43 @@ def beyond_walls_figures(trainer, state, key: jax.Array, walls: tuple[list[float
                                trainer.cfg.eps)
 
 
+def phase2_cell(phase2: dict | None) -> str:
+    """A row's phase-2 mean minimum distances: learned, then subgoals aimed at the goal and random
+    subgoals on the same goals (``-`` where the run has no phase 2 or no diagnostic)."""
+    if not phase2:
+        return "-"
+    figures = [phase2["min_distance"]] + [phase2[p]["min_distance"] if p in phase2 else None for p in ("aimed", "random")]
+    return ", ".join("-" if f is None else f"{f:.2f}" for f in figures)
+
+
+def report_table(rows: list[dict]) -> str:
+    """The cage rows as a markdown table, robot by robot and seed by seed: the top box at the start
+    (walls up) with its greedy success, the top box with the walls gone and whether it stays within
+    them, phase 2 (learned, aimed, random), and the goals beyond and within the walls reached."""
+    def box(cage: dict, name: str) -> str:
+        b = cage["boxes"][name]
+        return f"{b['volume']:.1f} ({'within' if b['within_walls'] else 'past the walls'})"
+
+    lines = ["| preset | seed | env steps | top box (m² or m), success | top box, walls gone | "
+             "phase 2 min distance (m): learned, aimed, random | goals beyond the walls reached | within |",
+             "|---|---|---|---|---|---|---|---|"]
+    for r in sorted(rows, key=lambda r: (r["preset"], r["seed"])):
+        cage, counts = r["cage"], r["cage"].get("phase2")
+        reached = (f"{counts['reached_beyond']} of {counts['goals_beyond']}", f"{counts['reached_within']} of "
+                   f"{counts['goals_within']}") if counts else ("-", "-")
+        lines.append(f"| {r['preset']} | {r['seed']} | {r['env_steps'] / 1e6:.2f} M | {box(cage, 'start_closed')}, "
+                     f"{r['success']:.2f} | {box(cage, 'start_open')} | {phase2_cell(r['phase2'])} | "
+                     f"{reached[0]} | {reached[1]} |")
+    return "\n".join(lines)
+
+
 def main(args: Args) -> None:
     out = Path(args.out)
+    if args.report_only:
+        if not out.exists():
+            raise SystemExit(f"--out: {out} does not exist; nothing to report")
+        print(report_table(json.loads(out.read_text())["rows"]))
+        return
     for preset in args.presets:
         for seed in args.seeds:
             run_dir = train_or_resume(Path(args.base), preset, seed, args.epochs)
@@ -148,6 +186,7 @@ def main(args: Args) -> None:
             print(json.dumps({"preset": preset, "seed": seed, "env_steps": row["env_steps"],
                               "top_area": row["top_area"], "success": row["success"],
                               "phase2_min_distance": phase2_distance, **cage}), flush=True)
+    print(report_table(json.loads(out.read_text())["rows"]))
     print(f"wrote {out}")
 
 

@@ -5,7 +5,7 @@ import dataclasses
 import jax
 import numpy as np
 import pytest
-from cages import absolute_box, beyond_walls_counts, beyond_walls_figures, cage_figures, wall_bounds
+from cages import absolute_box, beyond_walls_counts, beyond_walls_figures, cage_figures, report_table, wall_bounds
 
 from mjx_emp.algos.he.presets import PRESETS
 from mjx_emp.algos.registry import make_agent
@@ -96,3 +96,24 @@ def test_beyond_walls_figures_count_greedy_phase_2_episodes_in_the_ant_cage():
     counts = beyond_walls_figures(trainer, state, jax.random.key(0), walls, envs=6)
     assert counts["episodes"] == 6 and counts["goals_within"] + counts["goals_beyond"] == 6
     assert 0 <= counts["reached_beyond"] <= counts["goals_beyond"] and 0.0 <= counts["opened"] <= 1.0
+
+
+def _cage_row(preset: str, seed: int, phase2: dict | None, counts: dict | None) -> dict:
+    box = {"volume": 12.14, "within_walls": True}
+    return {"preset": preset, "seed": seed, "env_steps": 2_150_400.0, "success": 0.941, "phase2": phase2,
+            "cage": {"boxes": {"start_closed": box, "start_open": {"volume": 20.0, "within_walls": False}},
+                     **({"phase2": counts} if counts else {})}}
+
+
+def test_report_table_gives_each_cage_row_its_boxes_phase_2_policies_and_goals_beyond_the_walls():
+    phase2 = {"min_distance": 2.764, "aimed": {"min_distance": 4.31}, "random": {"min_distance": 6.16}}
+    counts = {"goals_beyond": 145, "reached_beyond": 23, "goals_within": 255, "reached_within": 225}
+    rows = [_cage_row("half-cheetah-cage-cpu-k2", 0, phase2, counts), _cage_row("ant-cage-cpu-k1", 1, None, None),
+            _cage_row("ant-cage-cpu-k1", 0, {"min_distance": 3.0}, None)]
+    lines = report_table(rows).splitlines()
+    assert [line.split(" | ")[0:2] for line in lines[2:]] == [["| ant-cage-cpu-k1", "0"], ["| ant-cage-cpu-k1", "1"],
+                                                             ["| half-cheetah-cage-cpu-k2", "0"]]  # sorted
+    assert lines[4] == ("| half-cheetah-cage-cpu-k2 | 0 | 2.15 M | 12.1 (within), 0.94 | 20.0 (past the walls) | "
+                        "2.76, 4.31, 6.16 | 23 of 145 | 225 of 255 |")
+    assert "| 3.00, -, - | - | - |" in lines[2]  # a phase 2 without the scripted policies' figures
+    assert lines[3].endswith("| 20.0 (past the walls) | - | - | - |")  # no phase 2
