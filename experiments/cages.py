@@ -186,8 +186,9 @@ def main(args: Args) -> None:
             print(json.dumps({"preset": preset, "seed": seed, "env_steps": row["env_steps"],
                               "top_area": row["top_area"], "success": row["success"],
                               "phase2_min_distance": phase2_distance, **cage}), flush=True)
-    print(report_table(json.loads(out.read_text())["rows"]))
-    print(f"wrote {out}")
+    if out.exists():  # no presets given: nothing was written
+        print(report_table(json.loads(out.read_text())["rows"]))
+        print(f"wrote {out}")
 
 
 if __name__ == "__main__":
