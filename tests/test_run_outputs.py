@@ -199,7 +199,8 @@ def test_a_comparison_row_carries_the_scripted_policies_figures_beside_the_learn
     from baselines import phase2_of
 
     row = phase2_of(trained_run, seed=0, episodes=16)
-    assert row["phase2_min_distance"] >= 0.0 and len(row["phase2_curve"]) == 2  # one point per phase-2 epoch
+    epochs = (phase2_run / "metrics.jsonl").read_text().splitlines()  # other tests may have resumed it further
+    assert row["phase2_min_distance"] >= 0.0 and len(row["phase2_curve"]) == len(epochs) >= 2  # a point per epoch
     for policy in ("aimed", "aimed_half", "random"):  # the chaining diagnostic on the same goals
         assert row[f"phase2_{policy}_min_distance"] >= 0.0 and 0.0 <= row[f"phase2_{policy}_success"] <= 1.0
     assert row["phase2_random_min_distance"] != row["phase2_aimed_min_distance"]  # a different policy, not a copy
