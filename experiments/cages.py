@@ -165,6 +165,7 @@ def main(args: Args) -> None:
             raise SystemExit(f"--out: {out} does not exist; nothing to report")
         print(report_table(json.loads(out.read_text())["rows"]))
         return
+    rows: list[dict] = []
     for preset in args.presets:
         for seed in args.seeds:
             run_dir = train_or_resume(Path(args.base), preset, seed, args.epochs)
@@ -180,14 +181,14 @@ def main(args: Args) -> None:
                 walls = (row["cage"]["walls_lower"], row["cage"]["walls_upper"])
                 row["cage"]["phase2"] = beyond_walls_figures(trainer, phase2_state, jax.random.key(2000 + seed), walls,
                                                              args.episodes)
-            merge_row(out, row)
+            rows = merge_row(out, row)  # every row of OUT, this one merged in
             cage = row["cage"]
             phase2_distance = row["phase2"] and row["phase2"]["min_distance"]
             print(json.dumps({"preset": preset, "seed": seed, "env_steps": row["env_steps"],
                               "top_area": row["top_area"], "success": row["success"],
                               "phase2_min_distance": phase2_distance, **cage}), flush=True)
-    if out.exists():  # no presets given: nothing was written
-        print(report_table(json.loads(out.read_text())["rows"]))
+    if rows:  # empty when no preset was given: nothing was written
+        print(report_table(rows))
         print(f"wrote {out}")
 
 

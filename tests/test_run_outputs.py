@@ -11,7 +11,7 @@ import pytest
 from PIL import Image
 from tiny import SMALL, run_cli
 
-from mjx_emp.run import checkpoint, jobs
+from mjx_emp.run import checkpoint, jobs, store
 from mjx_emp.viz.render import Recording, first_skills, marker_position
 
 
@@ -199,7 +199,7 @@ def test_a_comparison_row_carries_the_scripted_policies_figures_beside_the_learn
     from baselines import phase2_of
 
     row = phase2_of(trained_run, seed=0, episodes=16)
-    epochs = (phase2_run / "metrics.jsonl").read_text().splitlines()  # other tests may have resumed it further
+    epochs = store.read_metrics(phase2_run)  # other tests may have resumed it further
     assert row["phase2_min_distance"] >= 0.0 and len(row["phase2_curve"]) == len(epochs) >= 2  # a point per epoch
     for policy in ("aimed", "aimed_half", "random"):  # the chaining diagnostic on the same goals
         assert row[f"phase2_{policy}_min_distance"] >= 0.0 and 0.0 <= row[f"phase2_{policy}_success"] <= 1.0
