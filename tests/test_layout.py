@@ -23,6 +23,7 @@ LAYERS = [
      "mjx_emp.run.tracking",
      "mjx_emp.run.seeds", "mjx_emp.run.devices", "mjx_emp.run.hosts", "mjx_emp.run.preflight"],
     ["mjx_emp.viz.plots", "mjx_emp.viz.render"],
+    ["mjx_emp.report"],
     ["mjx_emp.cli", "mjx_emp.api"],
 ]
 NAMED = {module: depth for depth, modules in enumerate(LAYERS) for module in modules if not module.endswith("*")}

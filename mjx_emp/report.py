@@ -1,0 +1,548 @@
+"""Reports of sweep results: evaluation rows (``results/<spec>.jsonl``) turned into Markdown
+tables and seed-band figures, with the statistics the field reports for few-seed RL results
+(Agarwal et al., 2021): the interquartile mean with a 95 % stratified-bootstrap interval and the
+probability of improvement, both computed by ``rliable``.
+
+Everything here is pure except the readers and writers at the end (``read_rows``,
+``read_block``, ``write_block``, ``seed_band_figure``). ``rliable`` and ``matplotlib`` are
+imported inside the functions that use them, so importing this module stays cheap and never
+starts JAX.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import shutil
+import tempfile
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mjx_emp import tables
+from mjx_emp.errors import ConfigError
+
+ROW_SCHEMA = 1
+"""The version of the row format this module reads (a row's ``schema`` field)."""
+
+DEFAULT_REPS = 2000
+"""Bootstrap resamples per interval: a few tenths of a second per metric, and an interval
+whose ends move by well under the third significant digit from seed to seed at 3-10 runs."""
+
+CONFIDENCE = 0.95
+"""Coverage of every bootstrap interval."""
+
+MISSING = "-"
+"""A table cell with no value."""
+
+
+# --------------------------------------------------------------------------- metrics
+
+
+@dataclass(frozen=True)
+class Metric:
+    """One number a row may carry: where it sits in the row, how tables and axes name it, and
+    which way is better (the probability of improvement reads it)."""
+
+    name: str
+    path: tuple[str, ...]
+    label: str
+    unit: str
+    lower_is_better: bool
+
+    @property
+    def heading(self) -> str:
+        """The label with its unit, as an axis or a column names the metric."""
+        return f"{self.label} ({self.unit})" if self.unit else self.label
+
+
+def _metric(name: str, path: tuple[str, ...], label: str, unit: str = "", lower_is_better: bool = False) -> Metric:
+    return Metric(name, path, label, unit, lower_is_better)
+
+
+METRICS: dict[str, Metric] = {m.name: m for m in (
+    _metric("phase2_min_distance", ("figures", "phase2", "min_distance"), "phase-2 min distance", "m", True),
+    _metric("phase2_success", ("figures", "phase2", "success"), "phase-2 success", "fraction"),
+    _metric("phase2_cut_short", ("figures", "phase2", "cut_short"),
+            "phase-2 episodes ended by a flip", "fraction", True),
+    _metric("phase2_aimed_min_distance", ("figures", "phase2", "aimed", "min_distance"),
+            "phase-2 aimed min distance", "m", True),
+    _metric("phase2_aimed_success", ("figures", "phase2", "aimed", "success"), "phase-2 aimed success", "fraction"),
+    _metric("phase2_random_min_distance", ("figures", "phase2", "random", "min_distance"),
+            "phase-2 random-goal min distance", "m", True),
+    _metric("phase2_random_success", ("figures", "phase2", "random", "success"),
+            "phase-2 random-goal success", "fraction"),
+    _metric("top_volume", ("figures", "top_volume"), "top-level goal-space volume", "m² or m"),
+    _metric("top_success", ("figures", "top_success"), "top-level success", "fraction"),
+    _metric("volume_x_success", ("figures", "volume_x_success"), "top volume × success", "m² or m"),
+    _metric("coverage_cells", ("figures", "coverage_cells"), "coverage", "cells"),
+    _metric("posterior_std", ("figures", "posterior_std"), "skill posterior std", ""),
+    _metric("flips", ("figures", "flips"), "flips per episode", "", True),
+    _metric("env_steps", ("figures", "env_steps"), "env steps", ""),
+)}
+"""Every metric a report can show, by name. The volume's unit is m² for (x, y) goals and m for
+x goals; one table never mixes environments, so the unit is named once for both."""
+
+
+def metric_named(name: str | Metric) -> Metric:
+    """``name``'s entry in :data:`METRICS` (a :class:`Metric` passes through); an unknown name is
+    a ConfigError listing the known ones."""
+    if isinstance(name, Metric):
+        return name
+    if name not in METRICS:
+        raise ConfigError(f"metric: {name!r} is not one of {', '.join(METRICS)}")
+    return METRICS[name]
+
+
+def lookup(row: dict, path: Sequence[str]) -> Any:
+    """The value at ``path`` in a nested row, or None where any step is missing."""
+    value: Any = row
+    for key in path:
+        if not isinstance(value, dict):
+            return None
+        value = value.get(key)
+    return value
+
+
+def as_number(value: Any) -> float | None:
+    """``value`` as a finite float, or None for a missing, non-numeric or non-finite value."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return None
+    return float(value) if math.isfinite(value) else None
+
+
+def metric_values(rows: Sequence[dict], metric: str | Metric) -> list[float]:
+    """The metric's value in each row that has one, in row order; rows where it is missing,
+    null or not a finite number are skipped (so ``len`` is the n an aggregate stands on)."""
+    path = metric_named(metric).path
+    numbers = (as_number(lookup(row, path)) for row in rows)
+    return [x for x in numbers if x is not None]
+
+
+# --------------------------------------------------------------------------- statistics
+
+
+@contextmanager
+def seeded_numpy(seed: int) -> Iterator[None]:
+    """Run the block with numpy's global generator seeded by ``seed``, restoring its previous
+    state afterwards. rliable draws its bootstrap resamples with ``np.random.choice`` (the
+    global generator, not the ``random_state`` it accepts), so this is what makes its intervals
+    reproducible without disturbing anyone else's use of the global generator."""
+    state = np.random.get_state()
+    np.random.seed(seed)
+    try:
+        yield
+    finally:
+        np.random.set_state(state)
+
+
+def score_matrix(values: Sequence[float]) -> np.ndarray:
+    """Runs as rliable's score matrix: shape (runs, 1), one task."""
+    return np.asarray(values, dtype=float).reshape(-1, 1)
+
+
+def iqm_interval(values: Sequence[float], reps: int, seed: int) -> tuple[float, float, float]:
+    """(IQM, low, high): rliable's interquartile mean (the mean of the middle 50 % of runs)
+    and its percentile stratified-bootstrap interval."""
+    from rliable import library, metrics
+
+    def iqm(scores: np.ndarray) -> np.ndarray:
+        return np.array([metrics.aggregate_iqm(scores)])
+
+    with seeded_numpy(seed):
+        points, intervals = library.get_interval_estimates(
+            {"runs": score_matrix(values)}, iqm, reps=reps, confidence_interval_size=CONFIDENCE)
+    return float(points["runs"][0]), float(intervals["runs"][0, 0]), float(intervals["runs"][1, 0])
+
+
+def summary(values: Sequence[float], reps: int = DEFAULT_REPS, seed: int = 0) -> dict[str, float | int] | None:
+    """n, mean, sample std (ddof 1; 0 for one run), standard error, and the IQM with its 95 %
+    bootstrap interval [iqm_low, iqm_high] of ``values``; None for no values. One run's
+    interval is the value itself (a bootstrap of one value has no spread to show)."""
+    n = len(values)
+    if n == 0:
+        return None
+    x = np.asarray(values, dtype=float)
+    std = float(x.std(ddof=1)) if n > 1 else 0.0
+    if n == 1:
+        iqm = low = high = float(x[0])
+    else:
+        iqm, low, high = iqm_interval(x, reps, seed)
+    return {"n": n, "mean": float(x.mean()), "std": std, "se": std / math.sqrt(n),
+            "iqm": iqm, "iqm_low": low, "iqm_high": high}
+
+
+def probability_of_improvement(x: Sequence[float], y: Sequence[float], lower_is_better: bool = False,
+                               reps: int = DEFAULT_REPS, seed: int = 0) -> tuple[float, float, float] | None:
+    """(P, low, high): the probability that a run of X beats a run of Y (ties count half), by
+    rliable, with its 95 % bootstrap interval resampling X's and Y's runs independently. For a
+    lower-is-better metric both are negated, so that "beats" means "is smaller". None where
+    either side has no runs."""
+    if len(x) == 0 or len(y) == 0:
+        return None
+    from rliable import library, metrics
+
+    sign = -1.0 if lower_is_better else 1.0
+    xs, ys = sign * score_matrix(x), sign * score_matrix(y)
+
+    def improvement(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        return np.array([metrics.probability_of_improvement(a, b)])
+
+    with seeded_numpy(seed):
+        points, intervals = library.get_interval_estimates(
+            {"pair": [xs, ys]}, improvement, reps=reps, confidence_interval_size=CONFIDENCE)
+    return float(points["pair"][0]), float(intervals["pair"][0, 0]), float(intervals["pair"][1, 0])
+
+
+# --------------------------------------------------------------------------- tables
+
+
+def sig3(x: float) -> str:
+    """``x`` with 3 significant digits, written out in full up to 10¹⁵ (1234 -> "1230", not
+    "1.23e+03"), and no "-0"."""
+    rounded = float(f"{x:.3g}") + 0.0
+    if 1000 <= abs(rounded) < 1e15:
+        return f"{rounded:.0f}"
+    return f"{rounded:.3g}"
+
+
+def millions(x: float) -> str:
+    """Env steps in millions: 960000 -> "0.96 M"."""
+    return f"{sig3(x / 1e6)} M"
+
+
+def group_rows(rows: Sequence[dict], group_by: str = "row") -> dict[str, list[dict]]:
+    """Rows by their ``group_by`` field (as text), groups in order of first appearance."""
+    groups: dict[str, list[dict]] = {}
+    for row in rows:
+        groups.setdefault(str(row.get(group_by, MISSING)), []).append(row)
+    return groups
+
+
+def command_text(row: dict) -> str:
+    """A row's preset and overrides as a compact command tail: ``point-mass-k1 --epochs 3``."""
+    overrides = row.get("overrides") or {}
+    flags = [f"--{key.replace('_', '-')} {value}" for key, value in sorted(overrides.items())]
+    return " ".join([str(row.get("preset") or MISSING), *flags])
+
+
+def distinct_commands(group: Sequence[dict]) -> str:
+    """Every distinct command of a group's rows, in first-appearance order ("; " between; a
+    group is normally one command over several seeds)."""
+    return "; ".join(dict.fromkeys(command_text(row) for row in group))
+
+
+def spread_cell(stat: dict | None, group_size: int) -> str:
+    """``mean ± std (se)``; ``n=K`` follows where fewer than all the group's rows have it."""
+    if stat is None:
+        return MISSING
+    cell = f"{sig3(stat['mean'])} ± {sig3(stat['std'])} ({sig3(stat['se'])})"
+    return cell if stat["n"] == group_size else f"{cell} n={stat['n']}"
+
+
+def interval_cell(point: float, low: float, high: float) -> str:
+    """``point [low, high]``."""
+    return f"{sig3(point)} [{sig3(low)}, {sig3(high)}]"
+
+
+def iqm_cell(stat: dict | None) -> str:
+    """The IQM with its interval, or the missing mark."""
+    return MISSING if stat is None else interval_cell(stat["iqm"], stat["iqm_low"], stat["iqm_high"])
+
+
+def table_headers(group_by: str, metrics: Sequence[Metric], baseline: str | None) -> list[str]:
+    """Columns: group, command, seeds, env steps, then per metric its spread and IQM, then (with
+    a baseline) per metric the probability of improvement over it."""
+    headers = [group_by, "preset", "seeds", "env steps"]
+    for metric in metrics:
+        arrow = "↓" if metric.lower_is_better else "↑"
+        headers += [f"{metric.heading} {arrow} mean ± std (se)", f"{metric.label} IQM [95% CI]"]
+    if baseline is not None:
+        headers += [f"P({metric.label} better than {baseline}) [95% CI]" for metric in metrics]
+    return headers
+
+
+def table_line(name: str, group: Sequence[dict], metrics: Sequence[Metric], baseline_rows: Sequence[dict] | None,
+               reps: int, seed: int) -> list[str]:
+    """One group's cells (see :func:`table_headers`); ``baseline_rows`` None for the baseline
+    itself or where there is no baseline."""
+    steps = metric_values(group, METRICS["env_steps"])
+    cells = [name, distinct_commands(group), str(len(group)), millions(float(np.mean(steps))) if steps else MISSING]
+    for metric in metrics:
+        stat = summary(metric_values(group, metric), reps, seed)
+        cells += [spread_cell(stat, len(group)), iqm_cell(stat)]
+    if baseline_rows is not None:
+        for metric in metrics:
+            p = probability_of_improvement(metric_values(group, metric), metric_values(baseline_rows, metric),
+                                           metric.lower_is_better, reps, seed)
+            cells.append(MISSING if p is None else interval_cell(*p))
+    return cells
+
+
+def markdown_table(rows: Sequence[dict], metrics: Sequence[str | Metric], group_by: str = "row",
+                   baseline: str | None = None, reps: int = DEFAULT_REPS, seed: int = 0) -> str:
+    """A Markdown table of ``rows``: one line per ``group_by`` value (first-appearance order)
+    with its command, seed count, mean env steps, and per metric ``mean ± std (se)`` and the
+    IQM with its 95 % interval over the rows that have the metric. With ``baseline`` (a group
+    name), per metric also P(a run of the group beats a run of the baseline) with its interval
+    ("-" on the baseline's own line). Numbers carry 3 significant digits; the same rows, reps
+    and seed give the same text."""
+    chosen = [metric_named(m) for m in metrics]
+    groups = group_rows(rows, group_by)
+    if baseline is not None and baseline not in groups:
+        raise ConfigError(f"baseline: {baseline!r} is not a {group_by} of these rows "
+                          f"({', '.join(groups) or 'there are none'})")
+    with_baseline = baseline is not None
+    lines = []
+    for name, group in groups.items():
+        against = groups[baseline] if with_baseline and name != baseline else None
+        cells = table_line(name, group, chosen, against, reps, seed)
+        if with_baseline and against is None:
+            cells += [MISSING] * len(chosen)
+        lines.append(cells)
+    return tables.markdown_table(table_headers(group_by, chosen, baseline), lines)
+
+
+# --------------------------------------------------------------------------- figures
+
+
+@dataclass(frozen=True)
+class Band:
+    """One group's curve over its seeds on a common grid of env steps."""
+
+    n: int
+    x: list[float]
+    mean: list[float]
+    std: list[float]
+
+
+@dataclass(frozen=True)
+class Chart:
+    """A saved seed-band figure and what it shows, read back from its axes: the texts, and per
+    legend entry the plotted mean line."""
+
+    path: Path
+    title: str
+    xlabel: str
+    ylabel: str
+    legend: list[str]
+    series: dict[str, Band]
+
+
+def curve_steps_key(curve: str) -> str:
+    """The ``curves`` entry holding a curve's x values: phase-2 curves run on phase 2's own env
+    steps."""
+    return "phase2_env_steps" if curve.startswith("phase2_") else "env_steps"
+
+
+def curve_heading(curve: str) -> str:
+    """A curve's y-axis label: its metric's label and unit where the curve is a metric, else
+    its name."""
+    return METRICS[curve].heading if curve in METRICS else curve
+
+
+def row_curve(row: dict, curve: str) -> tuple[np.ndarray, np.ndarray] | None:
+    """(env steps, values) of one row's curve (null values as NaN), or None where the row has
+    no such curve; steps and values of unequal length are a ConfigError naming the row."""
+    curves = row.get("curves") or {}
+    steps, values = curves.get(curve_steps_key(curve)), curves.get(curve)
+    if not steps or not values:
+        return None
+    if len(steps) != len(values):
+        raise ConfigError(f"curves: row {row.get('row')!r} seed {row.get('seed')!r} has {len(steps)} "
+                          f"{curve_steps_key(curve)} but {len(values)} {curve} values")
+    return (np.asarray(steps, dtype=float),
+            np.asarray([np.nan if v is None else v for v in values], dtype=float))
+
+
+def seed_bands(rows: Sequence[dict], curve: str = "top_volume", group_by: str = "row") -> dict[str, Band]:
+    """Per group (first-appearance order) the mean and sample std over its seeds of ``curve``,
+    each seed interpolated onto the steps of the one that ends first
+    (:func:`mjx_emp.viz.plots.seed_band`); groups whose rows lack the curve are left out."""
+    from mjx_emp.viz.plots import seed_band
+
+    bands = {}
+    for name, group in group_rows(rows, group_by).items():
+        curves = [c for c in (row_curve(row, curve) for row in group) if c is not None]
+        if curves:
+            band = seed_band(curves)
+            bands[name] = Band(int(band["count"]), band["steps"].tolist(), band["mean"].tolist(),
+                               band["std"].tolist())
+    return bands
+
+
+def legend_text(name: str, band: Band) -> str:
+    """A group's legend entry: ``GROUP (n=K)``."""
+    return f"{name} (n={band.n})"
+
+
+def replace_atomically(path: Path, write: Callable[[Path], None]) -> None:
+    """Have ``write`` fill a temporary file beside ``path``, then move it over ``path`` in one
+    step, so a reader never sees half a file; an existing file's permissions carry over."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=path.suffix)
+    os.close(handle)
+    try:
+        write(Path(temporary))
+        if path.exists():
+            shutil.copymode(path, temporary)
+        else:
+            os.chmod(temporary, 0o644)
+        os.replace(temporary, path)
+    except BaseException:
+        Path(temporary).unlink(missing_ok=True)
+        raise
+
+
+def seed_band_figure(rows: Sequence[dict], curve: str = "top_volume", out: Path | str = "seed_bands.png",
+                     group_by: str = "row", title: str | None = None) -> Chart:
+    """A PNG of ``curve`` against env steps: per group the mean over its seeds with a shaded
+    band of one sample std, legend ``GROUP (n=K)``. Returns the path and what the axes show
+    (read back from them), so a caller or a test can check the chart's content. No group with
+    the curve is a ConfigError."""
+    from matplotlib.figure import Figure
+
+    from mjx_emp.run.store import writing
+
+    bands = seed_bands(rows, curve, group_by)
+    if not bands:
+        raise ConfigError(f"figure: no row has a {curve!r} curve (with its {curve_steps_key(curve)})")
+    fig = Figure(figsize=(7, 4))
+    ax = fig.add_subplot()
+    for name, band in bands.items():
+        x, mean, std = (np.asarray(v) for v in (band.x, band.mean, band.std))
+        (line,) = ax.plot(x, mean, label=legend_text(name, band))
+        if band.n > 1:
+            ax.fill_between(x, mean - std, mean + std, color=line.get_color(), alpha=0.2, linewidth=0)
+    ax.set_xlabel("env steps")
+    ax.set_ylabel(curve_heading(curve))
+    ax.set_title(title if title is not None else f"{curve_heading(curve)}: mean ± 1 sample std over seeds")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize="small")
+    fig.tight_layout()
+    path = Path(out)
+    with writing(path, chosen=True):
+        replace_atomically(path, lambda temporary: fig.savefig(temporary, dpi=100, format="png"))
+    legend = [text.get_text() for text in ax.get_legend().get_texts()]
+    plotted = {line.get_label(): line for line in ax.get_lines()}
+    series = {name: Band(band.n, [float(v) for v in plotted[legend_text(name, band)].get_xdata()],
+                         [float(v) for v in plotted[legend_text(name, band)].get_ydata()], band.std)
+              for name, band in bands.items()}
+    return Chart(path, ax.get_title(), ax.get_xlabel(), ax.get_ylabel(), legend, series)
+
+
+# --------------------------------------------------------------------------- files
+
+
+def block_markers(name: str) -> tuple[str, str]:
+    """The lines that open and close a generated block ``name`` in a Markdown file."""
+    return f"<!-- report:{name} -->", f"<!-- /report:{name} -->"
+
+
+def block_span(lines: Sequence[str], name: str, markdown_file: Path) -> tuple[int, int]:
+    """Indices of the opening and closing marker lines of block ``name``; missing, repeated or
+    misordered markers are a ConfigError naming the file and the two lines to add."""
+    opening, closing = block_markers(name)
+    starts = [i for i, line in enumerate(lines) if line.strip() == opening]
+    ends = [i for i, line in enumerate(lines) if line.strip() == closing]
+    if len(starts) != 1 or len(ends) != 1 or starts[0] > ends[0]:
+        found = f"found {len(starts)} opening and {len(ends)} closing marker lines"
+        raise ConfigError(f"block: {markdown_file} needs exactly one block {name!r}, the lines {opening} and "
+                          f"{closing} on their own, in that order ({found}); add them where the text belongs")
+    return starts[0], ends[0]
+
+
+def read_text(path: Path, what: str) -> str:
+    """A file's text; a missing file is a ConfigError saying ``what`` it was to be."""
+    try:
+        return path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError(f"{what}: {path} does not exist") from None
+
+
+def read_block(markdown_file: Path | str, name: str) -> str:
+    """The text between block ``name``'s marker lines (without the final newline)."""
+    path = Path(markdown_file)
+    lines = read_text(path, "block").splitlines(keepends=True)
+    start, end = block_span(lines, name, path)
+    return "".join(lines[start + 1:end]).removesuffix("\n")
+
+
+def with_block(text: str, name: str, content: str, markdown_file: Path) -> str:
+    """``text`` with block ``name``'s content replaced by ``content`` plus a newline (no blank
+    line for empty content); the marker lines and all outside them are kept byte for byte."""
+    lines = text.splitlines(keepends=True)
+    start, end = block_span(lines, name, markdown_file)
+    if not lines[start].endswith("\n"):
+        lines[start] += "\n"
+    body = content if not content or content.endswith("\n") else content + "\n"
+    return "".join(lines[:start + 1]) + body + "".join(lines[end:])
+
+
+def write_block(markdown_file: Path | str, name: str, text: str) -> bool:
+    """Put ``text`` between block ``name``'s marker lines of ``markdown_file``, atomically;
+    True where the file changed (an unchanged block leaves the file untouched)."""
+    from mjx_emp.run.store import writing
+
+    path = Path(markdown_file)
+    old = read_text(path, "block")
+    new = with_block(old, name, text, path)
+    if new == old:
+        return False
+    with writing(path, chosen=True):
+        replace_atomically(path, lambda temporary: temporary.write_text(new, encoding="utf-8"))
+    return True
+
+
+def row_key(row: dict) -> tuple[str, str, str]:
+    """What makes a row one result: (spec, row, seed); a later row with the same key replaces
+    an earlier one."""
+    return str(row.get("spec")), str(row.get("row")), str(row.get("seed"))
+
+
+def parse_row(line: str, path: Path, number: int) -> dict:
+    """One line of a rows file as a row; a line that is not a JSON object of this schema is a
+    ConfigError naming the file and line."""
+    try:
+        row = json.loads(line)
+    except json.JSONDecodeError as err:
+        raise ConfigError(f"rows: {path} line {number} is not JSON ({err.msg})") from None
+    if not isinstance(row, dict):
+        raise ConfigError(f"rows: {path} line {number} is not a JSON object")
+    if row.get("schema", ROW_SCHEMA) != ROW_SCHEMA:
+        raise ConfigError(f"rows: {path} line {number} has schema {row.get('schema')!r}; "
+                          f"this version reads schema {ROW_SCHEMA}")
+    return row
+
+
+def read_rows(path: Path | str) -> list[dict]:
+    """The rows of a ``.jsonl`` rows file, one per (spec, row, seed): the newest line wins, at
+    the place where the key first appeared. An unparseable last line (a write cut short) is
+    skipped; an unparseable line anywhere else is a ConfigError naming the file and line."""
+    path = Path(path)
+    numbered = [(i, line) for i, line in enumerate(read_text(path, "rows").splitlines(), start=1) if line.strip()]
+    rows: dict[tuple[str, str, str], dict] = {}
+    for position, (number, line) in enumerate(numbered):
+        try:
+            row = parse_row(line, path, number)
+        except ConfigError:
+            if position == len(numbered) - 1 and is_torn(line):
+                break
+            raise
+        rows[row_key(row)] = row
+    return list(rows.values())
+
+
+def is_torn(line: str) -> bool:
+    """Whether a line fails to parse as JSON at all, as a write cut short leaves it (a complete
+    line of the wrong shape is an error even at the end)."""
+    try:
+        json.loads(line)
+    except json.JSONDecodeError:
+        return True
+    return False

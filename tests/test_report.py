@@ -1,0 +1,156 @@
+"""Reports of sweep rows: metric lookup, rliable's IQM and probability of improvement, the
+Markdown table, the seed-band chart, generated blocks in Markdown files and the rows reader.
+Synthetic rows only; nothing trains."""
+
+import json
+from pathlib import Path
+
+import pytest
+
+from mjx_emp.errors import ConfigError
+from mjx_emp.report import (
+    METRICS,
+    markdown_table,
+    metric_values,
+    probability_of_improvement,
+    read_block,
+    read_rows,
+    seed_band_figure,
+    summary,
+    write_block,
+)
+
+REPS = 500  # enough for stable intervals on a handful of runs, and quick
+
+
+def make_row(row: str, seed: int, min_distance: float | None = None, coverage: int | None = None,
+             curve: tuple[list[float], list[float]] | None = None, spec: str = "smoke") -> dict:
+    """A row as the sweep writes it, with only the fields a test reads."""
+    figures: dict = {"epoch": 3, "env_steps": 960_000.0, "coverage_cells": coverage, "posterior_std": None}
+    if min_distance is not None:
+        figures["phase2"] = {"min_distance": min_distance, "success": 0.5, "cut_short": 0.0}
+    curves = {"env_steps": curve[0], "top_volume": curve[1]} if curve else {}
+    return {"schema": 1, "spec": spec, "row": row, "seed": seed, "run_dir": f"runs/{row}-{seed}",
+            "algorithm": row.split("-")[0], "env": "point_mass", "preset": "point-mass-k1",
+            "overrides": {"epochs": 3, "batch_size": 64}, "figures": figures, "curves": curves,
+            "provenance": {"commit": "abc123", "dirty": False}}
+
+
+def test_iqm_is_the_mean_of_the_middle_half_and_its_interval_is_seeded():
+    values = [0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 100.0]
+    first = summary(values, reps=REPS, seed=3)
+    assert first["iqm"] == pytest.approx(3.5)  # mean of 2, 3, 4, 5
+    assert first["mean"] == pytest.approx(15.125)
+    assert first["n"] == 8 and first["se"] == pytest.approx(first["std"] / 8 ** 0.5)
+    assert first["iqm_low"] < first["iqm"] < first["iqm_high"]
+    assert summary(values, reps=REPS, seed=3) == first
+
+
+def test_one_run_has_its_value_as_interval_and_no_run_no_summary():
+    assert summary([0.25], reps=REPS) == {"n": 1, "mean": 0.25, "std": 0.0, "se": 0.0,
+                                          "iqm": 0.25, "iqm_low": 0.25, "iqm_high": 0.25}
+    assert summary([], reps=REPS) is None
+
+
+def test_metric_values_skip_rows_without_the_metric():
+    rows = [make_row("he-k1", 0, 0.5), make_row("diayn", 0, coverage=7), make_row("he-k1", 1, float("nan"))]
+    assert metric_values(rows, "phase2_min_distance") == [0.5]
+    assert metric_values(rows, METRICS["coverage_cells"]) == [7.0]
+    with pytest.raises(ConfigError, match="not one of"):
+        metric_values(rows, "speed")
+
+
+def test_smaller_distances_beat_larger_ones_for_a_lower_is_better_metric():
+    near, far = [0.1, 0.2, 0.3], [0.5, 0.6, 0.7]
+    assert probability_of_improvement(near, far, lower_is_better=True, reps=REPS) == (1.0, 1.0, 1.0)
+    assert probability_of_improvement(near, far, lower_is_better=False, reps=REPS) == (0.0, 0.0, 0.0)
+    p, low, high = probability_of_improvement([0.1, 0.6], [0.5, 0.7], lower_is_better=True, reps=REPS)
+    assert p == 0.75 and low <= p <= high
+    assert probability_of_improvement([], far, True, reps=REPS) is None
+
+
+TABLE_ROWS = [make_row("he-k1", 0, 0.5, 10), make_row("gcrl-k1", 0, 0.9, 4), make_row("he-k1", 1, 0.7, 14),
+              make_row("gcrl-k1", 1, 1.1), make_row("diayn", 0, coverage=20)]
+EXPECTED_TABLE = """\
+| row | preset | seeds | env steps | phase-2 min distance (m) ↓ mean ± std (se) | phase-2 min distance IQM [95% CI] \
+| coverage (cells) ↑ mean ± std (se) | coverage IQM [95% CI] | P(phase-2 min distance better than gcrl-k1) [95% CI] \
+| P(coverage better than gcrl-k1) [95% CI] |
+|---|---|---|---|---|---|---|---|---|---|
+| he-k1 | point-mass-k1 --batch-size 64 --epochs 3 | 2 | 0.96 M | 0.6 ± 0.141 (0.1) | 0.6 [0.5, 0.7] \
+| 12 ± 2.83 (2) | 12 [10, 14] | 1 [1, 1] | 1 [1, 1] |
+| gcrl-k1 | point-mass-k1 --batch-size 64 --epochs 3 | 2 | 0.96 M | 1 ± 0.141 (0.1) | 1 [0.9, 1.1] \
+| 4 ± 0 (0) n=1 | 4 [4, 4] | - | - |
+| diayn | point-mass-k1 --batch-size 64 --epochs 3 | 1 | 0.96 M | - | - | 20 ± 0 (0) | 20 [20, 20] | - \
+| 1 [1, 1] |"""
+
+
+def test_the_table_has_a_line_per_group_with_spread_iqm_and_improvement_over_the_baseline():
+    table = markdown_table(TABLE_ROWS, ["phase2_min_distance", "coverage_cells"], baseline="gcrl-k1", reps=REPS)
+    assert table == EXPECTED_TABLE
+    assert markdown_table(TABLE_ROWS, ["phase2_min_distance", "coverage_cells"], baseline="gcrl-k1",
+                          reps=REPS) == table
+
+
+def test_the_table_groups_by_any_field_and_refuses_an_unknown_baseline():
+    table = markdown_table(TABLE_ROWS, ["coverage_cells"], group_by="algorithm", reps=REPS)
+    assert [line.split(" | ")[0] for line in table.splitlines()[2:]] == ["| he", "| gcrl", "| diayn"]
+    with pytest.raises(ConfigError, match="baseline: 'sac'.*he-k1, gcrl-k1, diayn"):
+        markdown_table(TABLE_ROWS, ["coverage_cells"], baseline="sac", reps=REPS)
+
+
+def test_the_chart_shows_each_groups_mean_over_its_seeds(tmp_path):
+    rows = [make_row("he-k1", 0, curve=([0, 100, 200], [0.0, 1.0, 2.0])),
+            make_row("he-k1", 1, curve=([0, 100, 200], [0.0, 3.0, 4.0])),
+            make_row("gcrl-k1", 0, curve=([0, 100], [0.5, None])),
+            make_row("diayn", 0)]
+    chart = seed_band_figure(rows, "top_volume", out=tmp_path / "figs" / "volume.png")
+    assert chart.path == tmp_path / "figs" / "volume.png"
+    assert chart.path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert chart.xlabel == "env steps"
+    assert chart.ylabel == "top-level goal-space volume (m² or m)"
+    assert "top-level goal-space volume" in chart.title
+    assert chart.legend == ["he-k1 (n=2)", "gcrl-k1 (n=1)"]
+    assert list(chart.series) == ["he-k1", "gcrl-k1"]
+    assert chart.series["he-k1"].x == [0.0, 100.0, 200.0]
+    assert chart.series["he-k1"].mean == [0.0, 2.0, 3.0]
+    assert chart.series["he-k1"].std == pytest.approx([0.0, 2 ** 0.5, 2 ** 0.5])
+    assert chart.series["gcrl-k1"].n == 1 and chart.series["gcrl-k1"].mean == [0.5, 0.5]
+    with pytest.raises(ConfigError, match="no row has a 'phase2_min_distance' curve"):
+        seed_band_figure(rows, "phase2_min_distance", out=tmp_path / "none.png")
+
+
+def test_write_block_replaces_only_the_block(tmp_path):
+    readme = tmp_path / "README.md"
+    readme.write_text("# Title\n\n<!-- report:smoke -->\nold table\nold line\n<!-- /report:smoke -->\n\ntail\n")
+    assert write_block(readme, "smoke", "| a |\n|---|") is True
+    assert readme.read_text() == "# Title\n\n<!-- report:smoke -->\n| a |\n|---|\n<!-- /report:smoke -->\n\ntail\n"
+    assert read_block(readme, "smoke") == "| a |\n|---|"
+    assert write_block(readme, "smoke", "| a |\n|---|") is False
+    assert [p.name for p in tmp_path.iterdir()] == ["README.md"]  # no temporary file left behind
+
+
+def test_write_block_without_markers_names_the_file_and_the_lines_to_add(tmp_path):
+    readme = tmp_path / "README.md"
+    readme.write_text("# Title\n<!-- report:other -->\n<!-- /report:other -->\n")
+    with pytest.raises(ConfigError, match=r"block: .*README\.md .*<!-- report:smoke --> and <!-- /report:smoke -->"):
+        write_block(readme, "smoke", "text")
+    assert readme.read_text() == "# Title\n<!-- report:other -->\n<!-- /report:other -->\n"
+
+
+def write_lines(path: Path, rows: list, tail: str = "") -> Path:
+    path.write_text("".join(json.dumps(row) + "\n" for row in rows) + tail)
+    return path
+
+
+def test_read_rows_skips_a_torn_last_line_and_keeps_the_newest_duplicate(tmp_path):
+    first, other, again = make_row("he-k1", 0, 0.5), make_row("he-k1", 1, 0.7), make_row("he-k1", 0, 0.4)
+    path = write_lines(tmp_path / "smoke.jsonl", [first, other, again], tail='{"schema": 1, "spec": "sm')
+    rows = read_rows(path)
+    assert [(r["seed"], r["figures"]["phase2"]["min_distance"]) for r in rows] == [(0, 0.4), (1, 0.7)]
+    assert len(read_rows(write_lines(tmp_path / "b.jsonl", [first, make_row("he-k1", 0, 0.5, spec="b")]))) == 2
+
+
+def test_read_rows_names_the_file_and_line_of_a_bad_line_before_the_last(tmp_path):
+    path = write_lines(tmp_path / "smoke.jsonl", [make_row("he-k1", 0, 0.5)], tail="{oops\n" + json.dumps({}) + "\n")
+    with pytest.raises(ConfigError, match=r"rows: .*smoke\.jsonl line 2 is not JSON"):
+        read_rows(path)
