@@ -203,6 +203,53 @@ class RenderExperiment:
     """Output video, .mp4 or .gif; empty means RUN_DIR/skills.mp4 (RUN_DIR/phase2.mp4 with --phase2)."""
 
 
+@dataclasses.dataclass(frozen=True)
+class SweepExperiment:
+    """Train, resume and evaluate every run of a spec (a TOML file of rows: preset, overrides,
+    seeds, budget, phase 2, evaluation; :mod:`mjx_emp.run.sweep`). A second call trains nothing
+    that is finished and evaluates nothing whose row is stored; an interrupted one resumes."""
+
+    spec: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="SPEC")]
+    """The spec file, e.g. experiments/smoke-point-mass.toml."""
+    runs: str = ""
+    """Runs root: each run is RUNS/<spec name>/<row>-s<seed>; empty: the spec's ``runs`` (default runs/sweeps)."""
+    results: str = ""
+    """The rows file; empty: results/<spec name>.jsonl."""
+    workers: int = 1
+    """Local worker processes, one row's job each at a time."""
+    executor: Literal["local", "submitit-local", "slurm"] = "local"
+    """local: worker processes on this machine; slurm: one Slurm job per row through submitit (the
+    spec's [slurm] table holds its parameters); submitit-local: submitit's local executor."""
+    dry_run: bool = False
+    """Check the spec and say what a call would do; train nothing."""
+
+
+@dataclasses.dataclass(frozen=True)
+class ReportExperiment:
+    """Tables and seed-band figures of a spec's rows: per row n, mean ± std (se) and the IQM with
+    its 95 % stratified-bootstrap interval; with --baseline, the probability of improvement."""
+
+    spec: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="SPEC")]
+    """The spec file whose rows are reported (its rows' order and names)."""
+    results: str = ""
+    """The rows file; empty: results/<spec name>.jsonl."""
+    metrics: tuple[str, ...] = ()
+    """Metrics to report (`mjx-emp report SPEC --metrics phase2_min_distance coverage_cells`); empty: the
+    spec's own, else every metric the rows hold."""
+    baseline: str = ""
+    """A row name: also give each other row's probability of improvement over it."""
+    figure: str = ""
+    """Also draw a seed-band figure of a curve (``--curve``) to this PNG."""
+    curve: str = "top_volume"
+    """The curve the figure shows: top_volume, top_success or phase2_min_distance."""
+    into: str = ""
+    """A Markdown file whose block ``--block`` (between <!-- report:NAME --> and <!-- /report:NAME -->) gets the table."""
+    block: str = ""
+    """The block's name; empty: the spec's name."""
+    reps: int = 2000
+    """Bootstrap resamples per interval."""
+
+
 EnvName = Literal[DOMAIN_NAMES]
 
 

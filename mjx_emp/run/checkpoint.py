@@ -465,7 +465,7 @@ class Checkpoints:
             try:
                 state = self.restore(epoch, template, expected)
                 if not self.read_only:
-                    self._set_aside_newer_than(epoch)
+                    self.set_aside_newer_than(epoch)
                 return epoch, state
             except CheckpointError as err:
                 if not fallback:
@@ -477,7 +477,7 @@ class Checkpoints:
                 errors.append(str(err))
         raise CheckpointError("no checkpoint restores: " + " | ".join(errors))
 
-    def _set_aside_newer_than(self, epoch: int) -> None:
+    def set_aside_newer_than(self, epoch: int) -> None:
         """Move checkpoints newer than ``epoch`` (skipped as unusable) to RUN_DIR/rejected-checkpoints.
 
         They are kept for inspection, not deleted, and no longer block the resumed run from

@@ -1,16 +1,30 @@
 """The figures a saved agent is judged by: phase-1 goal spaces, success and coverage; phase 2's
-minimum distance to goal. `mjx-emp eval` and the experiment scripts report these."""
+minimum distance to goal.
+
+:func:`evaluation_row` is the one evaluation of a run: `mjx-emp eval` and `mjx-emp sweep` both
+write its rows, from the same keys, so an eval of a sweep's run gives that run's row again.
+"""
 
 from __future__ import annotations
 
 import dataclasses
 import math
+import sys
+from pathlib import Path
+from typing import Any
 
 import jax
 import numpy as np
 
+from mjx_emp.algos.registry import GOAL_SPACES, algorithm_of
+from mjx_emp.errors import CheckpointError, ConfigError
 from mjx_emp.metrics import coverage_cells
 from mjx_emp.rollout.hierarchy import jit_init_rollout, jit_rollout
+from mjx_emp.run import jobs, store
+from mjx_emp.run.provenance import provenance, read_run_record
+
+ROW_SCHEMA = 1
+"""The version of an evaluation row's layout (:func:`evaluation_row`)."""
 
 COVERAGE_SKILLS = 48
 """Skills per coverage count, as in METRA's Ant figures."""
@@ -110,3 +124,92 @@ def attempt_rows(env, top, first_end: np.ndarray, attempts: int) -> list[dict]:
                      "upside_down_after": float(down_after[at].mean()),
                      "cut_short": float(np.asarray(top.cut)[at].mean())})
     return rows
+
+
+def phase2_of_run(run_dir: Path, key, episodes: int) -> dict | None:
+    """RUN_DIR/phase2's figures (:func:`phase2_figures`), None without one; a phase-2 folder that
+    cannot be loaded is reported on stderr and left out, so it never blocks the phase-1 figures."""
+    try:
+        loaded = jobs.load_run_phase2(run_dir)
+    except (ConfigError, CheckpointError) as err:
+        print(f"mjx-emp: {Path(run_dir) / store.PHASE2_SUBDIR} is unusable, its phase 2 is left out: {err}",
+              file=sys.stderr, flush=True)
+        return None
+    return None if loaded is None else phase2_figures(*loaded, key, episodes)
+
+
+def run_figures(run_dir: Path, key, episodes: int) -> dict[str, Any]:
+    """A run's figures from its newest good checkpoint, in one layout for every algorithm:
+    ``levels`` (goal-space algorithms; else empty), ``top_volume`` and ``top_success`` (the top
+    level's box at s0 and its greedy success; None without levels), ``flips`` (the fraction of the
+    top level's evaluation episodes a flip cut short), ``coverage_cells``, ``volume_x_success``,
+    ``posterior_std`` (DIAYN and HIDIO) and ``phase2`` (None without RUN_DIR/phase2)."""
+    agent, _, state = jobs.load_run(Path(run_dir))
+    if algorithm_of(agent.cfg).skills == GOAL_SPACES:
+        figures = phase1_figures(agent, state, key, episodes)
+        top = figures["levels"][-1]
+        figures = {**figures, "top_volume": top["volume"], "top_success": top["success"],
+                   "flips": top.get("cut_short"), "posterior_std": None}
+    else:
+        figures = skill_figures(agent, state, key)
+        figures = {**figures, "levels": [], "top_volume": None, "top_success": None, "flips": None,
+                   "volume_x_success": None}
+    figures.pop("algorithm", None)
+    return {**figures, "phase2": phase2_of_run(Path(run_dir), key, episodes)}
+
+
+def run_curves(run_dir: Path) -> dict[str, list]:
+    """A run's learning curves from its metrics: env steps, the top level's box volume and greedy
+    success per epoch (goal-space algorithms), and phase 2's greedy min distance per epoch."""
+    lines = store.read_metrics(Path(run_dir))
+    curves: dict[str, list] = {"env_steps": [line["env_steps"] for line in lines]}
+    if lines and "levels" in lines[0]:
+        curves["top_volume"] = [line["levels"][-1].get("volume") for line in lines]
+        curves["top_success"] = [line["levels"][-1].get("success") for line in lines]
+    phase2_dir = Path(run_dir) / store.PHASE2_SUBDIR
+    if (phase2_dir / store.METRICS_FILE).exists():
+        phase2 = store.read_metrics(phase2_dir)
+        curves["phase2_env_steps"] = [line["env_steps"] for line in phase2]
+        curves["phase2_min_distance"] = [line.get("min_distance") for line in phase2]
+    return curves
+
+
+def training_seconds(run_dir: Path) -> float:
+    """Wall seconds of a run's epochs as its metrics record them (compilation included; for seeds
+    trained together, each seed's epochs count the whole program's time)."""
+    return float(sum(line.get("seconds", 0.0) for line in store.read_metrics(Path(run_dir))))
+
+
+def evaluation_row(run_dir: Path, seed: int = 0, episodes: int = 400, command: str | None = None,
+                   spec: str | None = None, row: str | None = None) -> dict[str, Any]:
+    """The one evaluation of a run, as a row: what was trained (algorithm, env, seed, preset and
+    overrides from the run's provenance), its figures (:func:`run_figures` with the evaluation
+    key ``jax.random.key(seed)``, for phase 1 and phase 2 alike), its curves, and how it was made
+    (the training's provenance and the evaluation's). ``spec`` and ``row`` name the sweep row it
+    belongs to (None for a run evaluated on its own)."""
+    run_dir = Path(run_dir)
+    cfg = store.read_run_config(run_dir, "run_dir")
+    trained = read_run_record(run_dir)
+    figures = run_figures(run_dir, jax.random.key(seed), episodes)
+    return {
+        "schema": ROW_SCHEMA, "spec": spec, "row": row, "seed": int(cfg.seed), "run_dir": str(run_dir),
+        "algorithm": algorithm_of(cfg).name, "env": cfg.env, "k": getattr(cfg, "k", None),
+        "preset": trained.get("preset"), "overrides": trained.get("overrides"),
+        "phase2_preset": _phase2_preset(run_dir),
+        "figures": figures, "curves": run_curves(run_dir),
+        "train": {**trained, "env_steps": figures["env_steps"], "wall_s": training_seconds(run_dir),
+                  "config": store.config_json(cfg)},
+        "evaluation": {"seed": seed, "episodes": episodes, **provenance(command)},
+    }
+
+
+def _phase2_preset(run_dir: Path) -> str | None:
+    """The phase-2 preset RUN_DIR/phase2 was started from, where its provenance says."""
+    phase2_dir = run_dir / store.PHASE2_SUBDIR
+    return read_run_record(phase2_dir).get("preset") if (phase2_dir / store.CONFIG_FILE).exists() else None
+
+
+def row_figures(row: dict) -> dict:
+    """What two evaluations of one run must agree on: the row less its provenance (timing, the
+    command, the machine)."""
+    return {name: value for name, value in row.items() if name not in ("train", "evaluation")}

@@ -99,3 +99,37 @@ def _train_group(exp: TrainExperiment, algorithm, dirs: list[Path]) -> Any:
     finally:
         for member in members:
             member.checkpoints.close()
+
+
+def resume_seeds(dirs: list[Path], configs: list[Any], keep_checkpoints: int = 3) -> Any:
+    """Continue seeds that trained as one program, as one program again, from the newest epoch
+    every seed has a good checkpoint of; returns the stacked final state.
+
+    A kill can land between two seeds' checkpoints of one epoch, so one seed may be an epoch
+    ahead: its newer checkpoints are set aside (RUN_DIR/rejected-checkpoints) and its metrics cut
+    back, and the group trains that epoch again together. Resuming each seed alone instead would
+    run a program of another batch shape, whose floating-point results differ slightly; as a
+    group the resumed seeds end where an uninterrupted group would. ``configs`` are the seeds'
+    configs (epochs and step budget may differ from the runs' own, as for ``mjx-emp resume``).
+    """
+    from mjx_emp.run.checkpoint import Checkpoints
+
+    agents = [make_agent(cfg) for cfg in configs]
+    group = SeedGroup(agents[0], tuple(cfg.seed for cfg in configs))
+    with contextlib.ExitStack() as stack:
+        for run_dir in dirs:
+            stack.enter_context(store.run_lock(run_dir, "resume"))
+        members = [loop.Member(agent, stack.enter_context(Checkpoints(run_dir, keep_checkpoints)), Path(run_dir))
+                   for agent, run_dir in zip(agents, dirs)]
+        epoch = min(member.checkpoints.epochs()[-1] for member in members)
+        template = jax.eval_shape(agents[0].init)
+        states = []
+        for member in members:
+            states.append(member.checkpoints.restore(epoch, template, member.trainer.cfg))
+            member.checkpoints.set_aside_newer_than(epoch)
+            store.keep_metrics_through(member.run_dir / store.METRICS_FILE, epoch)
+            store.write_config(member.run_dir, member.trainer.cfg)
+        print(f"resuming {', '.join(str(d) for d in dirs)} from epoch {epoch} as one program", flush=True)
+        state = jax.tree.map(lambda *leaves: jnp.stack(leaves), *states)
+        with loop.progress_reporter(configs[0].epochs, epoch, agents[0].describe) as report:
+            return loop.train_members(group, state, members, report, group.split)

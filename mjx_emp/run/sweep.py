@@ -1,0 +1,574 @@
+"""`mjx-emp sweep SPEC`: train, resume and evaluate every run of a study, with provenance.
+
+A spec is a committed TOML file naming rows: a preset, the config fields it overrides, the
+seeds, an env-step budget, the phase-2 task and the evaluation wanted::
+
+    name = "smoke-point-mass"       # rows go to results/<name>.jsonl; default: the file's stem
+    eval_seed = 0                   # evaluation key, as `mjx-emp eval --seed`
+    episodes = 400                  # evaluation episodes per level (and phase-2 episodes)
+
+    [[row]]
+    name = "he-k1"
+    preset = "point-mass-k1"
+    seeds = [0, 1, 2, 3]
+    max_env_steps = 960000          # optional: stop at the first epoch past this budget
+    overrides = { epochs = 30 }     # any config field of the preset, as `mjx-emp train` takes it
+    phase2 = "auto"                 # a phase-2 preset, "auto" (the run's own task) or absent (none)
+    phase2_overrides = { epochs = 10 }
+
+Each (row, seed) is a run directory RUNS/<spec>/<row>-s<seed>. The seeds of a row train as one
+vmapped program (`mjx-emp train --seeds`) and resume as one, so an interrupted sweep ends with
+the same numbers as one that was never stopped. A second call trains nothing that is finished
+and evaluates nothing whose row is in the store. Rows are evaluated by
+:func:`mjx_emp.run.evaluate.evaluation_row`, the evaluation `mjx-emp eval` runs.
+
+The spec is read and checked whole in plain Python (no JAX), so a bad spec is refused, naming
+the row and the field, before anything trains. Jobs (one per row) run in local worker
+processes, or through submitit: on Slurm, or with its local executor, which takes the same
+path without a cluster.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import shlex
+import sys
+import time
+import tomllib
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+from mjx_emp.algos.registry import algorithm_of, all_presets
+from mjx_emp.checks import config_from_dict
+from mjx_emp.errors import ConfigError
+from mjx_emp.phase2.config import Phase2Config, check_phase2_config
+from mjx_emp.phase2.presets import PHASE2_PRESETS, phase2_preset_for
+from mjx_emp.run import store
+from mjx_emp.run.rows import RESULTS_DIR, append_row, read_rows
+
+SPEC_KEYS = ("name", "eval_seed", "episodes", "runs", "slurm", "row")
+ROW_KEYS = ("name", "preset", "seeds", "overrides", "max_env_steps", "phase2", "phase2_overrides", "episodes",
+            "group_seeds")
+AUTO = "auto"
+"""``phase2 = "auto"``: the phase-2 preset `mjx-emp phase2 RUN_DIR` would pick for the run."""
+EXECUTORS = ("local", "submitit-local", "slurm")
+
+
+@dataclasses.dataclass(frozen=True)
+class Row:
+    """One row of a spec, checked: the phase-1 config (preset with overrides and budget), its
+    seeds, and the phase-2 config (None: no phase 2)."""
+
+    name: str
+    preset: str
+    overrides: dict[str, Any]
+    seeds: tuple[int, ...]
+    config: Any
+    phase2_preset: str | None
+    phase2_overrides: dict[str, Any]
+    phase2: Phase2Config | None
+    episodes: int
+    group_seeds: bool
+
+
+@dataclasses.dataclass(frozen=True)
+class Spec:
+    """A checked spec: its name (the rows file's), evaluation seed, rows and where it came from."""
+
+    name: str
+    path: str
+    eval_seed: int
+    rows: tuple[Row, ...]
+    runs: str
+    slurm: dict[str, Any]
+
+
+@dataclasses.dataclass(frozen=True)
+class Job:
+    """What one worker does: a row's seeds trained (as one program where they can be), their
+    phase 2 and their evaluation rows. Plain data, so that it pickles to a worker or to Slurm."""
+
+    spec: str
+    row: Row
+    run_dirs: tuple[str, ...]
+    eval_seed: int
+    log: str
+    command: str
+
+
+def _fail(where: str, message: str) -> ConfigError:
+    return ConfigError(f"{where}: {message}")
+
+
+def _integer(value: Any, where: str, field: str, low: int = 0) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < low:
+        raise _fail(where, f"{field}: must be an integer >= {low}; got {value!r}")
+    return value
+
+
+def _table(value: Any, where: str, field: str) -> dict[str, Any]:
+    if not isinstance(value, dict):
+        raise _fail(where, f"{field}: must be a table of config fields, e.g. {{ epochs = 10 }}; got {value!r}")
+    return dict(value)
+
+
+def _with_overrides(base: Any, overrides: dict[str, Any], where: str, field: str) -> Any:
+    """``base`` with ``overrides`` (config field -> value, as TOML gives it) applied and their
+    types checked; an unknown field or a wrong type is refused naming the row and the field."""
+    values = dataclasses.asdict(base)
+    for name, value in overrides.items():
+        if name not in values:
+            allowed = ", ".join(sorted(values))
+            raise _fail(where, f"{field}.{name}: not a field of {type(base).__name__}; allowed: {allowed}")
+        values[name] = value
+    try:
+        return config_from_dict(values, type(base))
+    except ConfigError as err:
+        raise _fail(where, f"{field}.{err}") from None
+
+
+def check_row(raw: Any, index: int, default_episodes: int) -> Row:
+    """One ``[[row]]`` table as a :class:`Row`, every field checked (errors name the row)."""
+    if not isinstance(raw, dict):
+        raise _fail(f"row {index}", f"must be a table ([[row]]); got {raw!r}")
+    name = raw.get("name")
+    if not isinstance(name, str) or not name or any(c in name for c in "/\\ ") or name.startswith("."):
+        raise _fail(f"row {index}", f"name: give each row a name without spaces or slashes; got {name!r}")
+    where = f"row {name!r}"
+    unknown = sorted(set(raw) - set(ROW_KEYS))
+    if unknown:
+        raise _fail(where, f"{unknown[0]}: not a row field; allowed: {', '.join(ROW_KEYS)}")
+    presets = all_presets()
+    preset = raw.get("preset")
+    if preset not in presets:
+        import difflib
+
+        close = difflib.get_close_matches(str(preset), list(presets), n=3, cutoff=0.6)
+        hint = f" (did you mean {', '.join(close)}?)" if close else ""
+        raise _fail(where, f"preset: {preset!r} is not a preset{hint}; `mjx-emp presets` lists them")
+    seeds = raw.get("seeds")
+    if not isinstance(seeds, list) or not seeds:
+        raise _fail(where, f"seeds: give a non-empty list of seeds, e.g. [0, 1, 2, 3]; got {seeds!r}")
+    seeds = tuple(_integer(seed, where, "seeds") for seed in seeds)
+    if len(set(seeds)) != len(seeds):
+        raise _fail(where, f"seeds: each seed once; got {list(seeds)}")
+    overrides = _table(raw.get("overrides", {}), where, "overrides")
+    for loop_field in ("seed",):
+        if loop_field in overrides:
+            raise _fail(where, f"overrides.{loop_field}: seeds come from the row's seeds list")
+    config = _with_overrides(presets[preset][1], overrides, where, "overrides")
+    if "max_env_steps" in raw:
+        config = dataclasses.replace(config, max_env_steps=_integer(raw["max_env_steps"], where, "max_env_steps", 1))
+    try:
+        algorithm_of(config).check(config)
+    except ConfigError as err:
+        raise _fail(where, f"overrides: {err}") from None
+    phase2_preset, phase2 = raw.get("phase2"), None
+    phase2_overrides = _table(raw.get("phase2_overrides", {}), where, "phase2_overrides")
+    if phase2_preset == AUTO:
+        phase2_preset = phase2_preset_for(config)
+        if phase2_preset is None:
+            raise _fail(where, f"phase2: no phase-2 task is built for env={config.env}; name one of "
+                               f"{', '.join(PHASE2_PRESETS)}")
+    if phase2_preset is not None:
+        if phase2_preset not in PHASE2_PRESETS:
+            raise _fail(where, f"phase2: {phase2_preset!r} is not a phase-2 preset; allowed: \"{AUTO}\", "
+                               f"{', '.join(PHASE2_PRESETS)}")
+        phase2 = _with_overrides(PHASE2_PRESETS[phase2_preset][2], phase2_overrides, where, "phase2_overrides")
+        try:
+            check_phase2_config(phase2)
+        except ConfigError as err:
+            raise _fail(where, f"phase2_overrides: {err}") from None
+    elif phase2_overrides:
+        raise _fail(where, "phase2_overrides: given without a phase2 preset")
+    episodes = _integer(raw.get("episodes", default_episodes), where, "episodes", 1)
+    group_seeds = raw.get("group_seeds", True)
+    if not isinstance(group_seeds, bool):
+        raise _fail(where, f"group_seeds: must be true or false; got {group_seeds!r}")
+    return Row(name, preset, overrides, seeds, config, phase2_preset, phase2_overrides, phase2, episodes,
+               group_seeds and config.shards == 1 and len(seeds) > 1)
+
+
+def load_spec(path: str | Path) -> Spec:
+    """Read and check a spec file (see the module docstring); a bad spec raises ConfigError
+    naming the row and the field, before anything is trained."""
+    path = Path(path)
+    try:
+        raw = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise ConfigError(f"spec: {str(path)!r} does not exist") from None
+    except (OSError, UnicodeDecodeError) as err:
+        raise ConfigError(f"spec: cannot read {path} ({err})") from None
+    except tomllib.TOMLDecodeError as err:
+        raise ConfigError(f"spec: {path} is not valid TOML ({err})") from None
+    unknown = sorted(set(raw) - set(SPEC_KEYS))
+    if unknown:
+        raise ConfigError(f"spec: {unknown[0]}: not a spec field; allowed: {', '.join(SPEC_KEYS)}")
+    name = raw.get("name", path.stem)
+    if not isinstance(name, str) or not name or "/" in name:
+        raise ConfigError(f"spec: name: must be a file-name-like string; got {name!r}")
+    eval_seed = _integer(raw.get("eval_seed", 0), "spec", "eval_seed")
+    episodes = _integer(raw.get("episodes", 400), "spec", "episodes", 1)
+    runs = raw.get("runs", "runs/sweeps")
+    if not isinstance(runs, str) or not runs:
+        raise ConfigError(f"spec: runs: must be a directory path; got {runs!r}")
+    slurm = raw.get("slurm", {})
+    if not isinstance(slurm, dict):
+        raise ConfigError(f"spec: slurm: must be a table of submitit parameters; got {slurm!r}")
+    rows = raw.get("row")
+    if not isinstance(rows, list) or not rows:
+        raise ConfigError("spec: row: give at least one [[row]] table")
+    checked = [check_row(row, index, episodes) for index, row in enumerate(rows)]
+    seen: dict[str, Row] = {}
+    for row in checked:
+        if row.name in seen:
+            raise ConfigError(f"row {row.name!r}: name: given twice; each row needs its own name")
+        twin = next((other for other in seen.values() if (other.config, other.phase2) == (row.config, row.phase2)
+                     and other.episodes == row.episodes), None)
+        if twin is not None:
+            raise ConfigError(f"row {row.name!r}: overrides: the same runs as row {twin.name!r} (a duplicate row)")
+        seen[row.name] = row
+    return Spec(name, str(path), eval_seed, tuple(checked), runs, slurm)
+
+
+# ---- what is done -----------------------------------------------------------------------------
+
+
+def run_dirs(runs_root: Path, spec: Spec, row: Row) -> tuple[str, ...]:
+    """The run directory of each seed of ``row``: RUNS/<spec>/<row>-s<seed>."""
+    return tuple(str(runs_root / spec.name / f"{row.name}-s{seed}") for seed in row.seeds)
+
+
+def seed_config(row: Row, seed: int) -> Any:
+    """The config of ``row``'s run of ``seed``."""
+    return dataclasses.replace(row.config, seed=seed)
+
+
+def finished(run_dir: Path, cfg: Any) -> bool:
+    """Whether a run directory's training is done for ``cfg``: its newest complete checkpoint is
+    at ``cfg.epochs``, or its metrics at that checkpoint reach ``cfg.max_env_steps``."""
+    newest = store.newest_checkpoint_on_disk(Path(run_dir))
+    if newest is None:
+        return False
+    if newest >= cfg.epochs:
+        return True
+    budget = getattr(cfg, "max_env_steps", None)
+    if budget is None:
+        return False
+    lines = [line for line in store.read_metrics(Path(run_dir)) if line.get("epoch") == newest]
+    return bool(lines) and lines[-1].get("env_steps", 0) >= budget
+
+
+def stored_rows(results: Path, spec: Spec) -> dict[tuple[str, int], dict]:
+    """The store's rows of ``spec``, by (row name, seed)."""
+    return {(row["row"], row["seed"]): row for row in read_rows(results) if row.get("spec") == spec.name}
+
+
+def row_is_current(stored: dict | None, row: Row, seed: int, eval_seed: int) -> bool:
+    """Whether a stored row answers ``row``'s run of ``seed`` as the spec asks it now: the same
+    resolved config, phase-2 config and evaluation."""
+    if stored is None:
+        return False
+    from mjx_emp.run.store import config_json
+
+    phase2 = None if row.phase2 is None else dataclasses.asdict(row.phase2)
+    train, evaluation = stored.get("train", {}), stored.get("evaluation", {})
+    return (train.get("config") == json.loads(json.dumps(config_json(seed_config(row, seed))))
+            and stored.get("phase2_config") == json.loads(json.dumps(phase2))
+            and evaluation.get("seed") == eval_seed and evaluation.get("episodes") == row.episodes)
+
+
+# ---- a job: train, phase 2, evaluate -----------------------------------------------------------
+
+
+def _same_config(run_dir: Path, cfg: Any, where: str) -> None:
+    """Refuse to continue a run directory trained for another config (the spec's row changed in
+    more than when it stops): its runs would not be the row's."""
+    if not (run_dir / store.CONFIG_FILE).exists():
+        return
+    from mjx_emp.checks import compile_identity
+
+    held = store.read_run_config(run_dir, "run_dir")
+    if type(held) is not type(cfg) or compile_identity(held) != compile_identity(cfg):
+        raise ConfigError(f"{where}: {run_dir} holds a run of another config than the row asks for; move it away "
+                          f"or give the row another name")
+
+
+def train_row(job: Job) -> list[str]:
+    """Phase 1 of every seed of the job's row: new seeds train as one vmapped program, an
+    interrupted group resumes as one, a finished run is left alone. Returns what was done."""
+    from mjx_emp.commands import ResumeExperiment, TrainExperiment
+    from mjx_emp.run import jobs
+    from mjx_emp.run.provenance import PROVENANCE_FILE, run_record
+
+    import jax  # noqa: F401 (loaded before the runs' provenance is taken, so it names the device)
+
+    row = job.row
+    dirs = [Path(d) for d in job.run_dirs]
+    configs = [seed_config(row, seed) for seed in row.seeds]
+    for run_dir, cfg in zip(dirs, configs):
+        _same_config(run_dir, cfg, f"row {row.name!r}")
+    todo = [i for i, (d, cfg) in enumerate(zip(dirs, configs)) if not finished(d, cfg)]
+    if not todo:
+        return ["phase 1 finished earlier"]
+    for i in todo:
+        dirs[i].mkdir(parents=True, exist_ok=True)
+        if not (dirs[i] / PROVENANCE_FILE).exists():
+            store.write_atomically(dirs[i] / PROVENANCE_FILE,
+                                   json.dumps(run_record(row.preset, row.overrides, job.command), indent=1))
+    started = [i for i in todo if store.newest_checkpoint_on_disk(dirs[i]) is not None]
+    if row.group_seeds and len(todo) == len(dirs) and not started:
+        base = str(dirs[0])[: -len(f"-s{row.seeds[0]}")]
+        jobs.train(TrainExperiment(config=row.config, run_dir=base, seeds=row.seeds))
+        return [f"trained seeds {', '.join(map(str, row.seeds))} as one program"]
+    if row.group_seeds and len(started) == len(dirs):
+        from mjx_emp.run.seeds import resume_seeds
+
+        resume_seeds([dirs[i] for i in range(len(dirs))], configs)
+        return [f"resumed seeds {', '.join(map(str, row.seeds))} as one program"]
+    done = []
+    for i in todo:
+        if i in started:
+            jobs.resume(ResumeExperiment(resume=str(dirs[i]), epochs=configs[i].epochs,
+                                         max_env_steps=configs[i].max_env_steps or 0))
+            done.append(f"resumed seed {row.seeds[i]}")
+        else:
+            jobs.train(TrainExperiment(config=configs[i], run_dir=str(dirs[i])))
+            done.append(f"trained seed {row.seeds[i]}")
+    return done
+
+
+def phase2_row(job: Job) -> list[str]:
+    """Phase 2 of every seed of the job's row (none without a phase-2 preset): trained, resumed
+    or left alone when finished."""
+    from mjx_emp.commands import Phase2Experiment, ResumeExperiment
+    from mjx_emp.run import jobs
+    from mjx_emp.run.provenance import PROVENANCE_FILE, run_record
+
+    row = job.row
+    if row.phase2 is None:
+        return []
+    done = []
+    for seed, run_dir in zip(row.seeds, map(Path, job.run_dirs)):
+        phase2_dir = run_dir / store.PHASE2_SUBDIR
+        if (phase2_dir / store.CONFIG_FILE).exists():
+            held = store.read_run_config(phase2_dir, "out", Phase2Config)
+            if dataclasses.replace(held, phase1_epoch=-1, epochs=row.phase2.epochs) != \
+                    dataclasses.replace(row.phase2, phase1_epoch=-1):
+                raise ConfigError(f"row {row.name!r}: {phase2_dir} holds a phase 2 of another config than the row "
+                                  f"asks for; move it away")
+            if finished(phase2_dir, row.phase2):
+                continue
+            if store.newest_checkpoint_on_disk(phase2_dir) is not None:
+                jobs.resume_phase2(ResumeExperiment(resume=str(phase2_dir), epochs=row.phase2.epochs))
+                done.append(f"resumed phase 2 of seed {seed}")
+                continue
+        phase2_dir.mkdir(parents=True, exist_ok=True)
+        store.write_atomically(phase2_dir / PROVENANCE_FILE,
+                               json.dumps(run_record(row.phase2_preset, row.phase2_overrides, job.command), indent=1))
+        jobs.train_phase2(Phase2Experiment(run_dir=str(run_dir), config=row.phase2))
+        done.append(f"trained phase 2 of seed {seed}")
+    return done
+
+
+def run_job(job: Job) -> list[dict]:
+    """Everything a row needs, in one worker: phase 1, phase 2, then each seed's evaluation row.
+    Its output goes to the job's log file."""
+    with _output_to(Path(job.log)):
+        print(f"== {time.strftime('%Y-%m-%d %H:%M:%S')} row {job.row.name} of {job.spec}", flush=True)
+        done = train_row(job) + phase2_row(job)
+        from mjx_emp.run.evaluate import evaluation_row
+
+        rows = []
+        for run_dir in job.run_dirs:
+            print(f"evaluating {run_dir} ...", flush=True)
+            row = evaluation_row(Path(run_dir), job.eval_seed, job.row.episodes, job.command, job.spec,
+                                 job.row.name)
+            row["phase2_config"] = None if job.row.phase2 is None else dataclasses.asdict(job.row.phase2)
+            row["evaluation"]["did"] = done
+            rows.append(json.loads(json.dumps(row)))
+        return rows
+
+
+class _output_to:
+    """Send this process's stdout and stderr (file descriptors too: JAX and orbax log there) to a
+    log file for the duration, and back after."""
+
+    def __init__(self, path: Path):
+        self.path = path
+
+    def __enter__(self):
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        sys.stdout.flush()
+        sys.stderr.flush()
+        self.log = open(self.path, "a")
+        self.saved = [os.dup(1), os.dup(2)]
+        os.dup2(self.log.fileno(), 1)
+        os.dup2(self.log.fileno(), 2)
+        return self
+
+    def __exit__(self, *exc):
+        sys.stdout.flush()
+        sys.stderr.flush()
+        for fd, saved in zip((1, 2), self.saved):
+            os.dup2(saved, fd)
+            os.close(saved)
+        self.log.close()
+
+
+def _die_with_parent() -> None:
+    """A local worker dies with the sweep that started it (Linux), so that a killed sweep leaves
+    no orphan training behind the run locks of the next call."""
+    try:
+        import ctypes
+        import signal
+
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+
+
+# ---- the sweep ----------------------------------------------------------------------------------
+
+
+@dataclasses.dataclass
+class Plan:
+    """The jobs a call runs and the (row, seed) pairs the store already answers."""
+
+    jobs: list[Job]
+    current: list[tuple[str, int]]
+    total: int
+
+
+def plan(spec: Spec, runs_root: Path, results: Path, command: str) -> Plan:
+    """What a call must do: a job for each row with a seed whose stored row is missing or no
+    longer what the spec asks (its training resumes or is left alone as its run directory says)."""
+    stored = stored_rows(results, spec)
+    jobs, current = [], []
+    logs = runs_root / spec.name / "logs"
+    for row in spec.rows:
+        fresh = [(row.name, seed) for seed in row.seeds
+                 if row_is_current(stored.get((row.name, seed)), row, seed, spec.eval_seed)]
+        current += fresh
+        if len(fresh) < len(row.seeds):
+            jobs.append(Job(spec.name, row, run_dirs(runs_root, spec, row), spec.eval_seed,
+                            str(logs / f"{row.name}.log"), command))
+    return Plan(jobs, current, sum(len(row.seeds) for row in spec.rows))
+
+
+def _executor(kind: str, workers: int, folder: Path, slurm: dict[str, Any]):
+    """The executor that runs jobs: local worker processes, or submitit (Slurm, or its local
+    executor) writing its files under ``folder``."""
+    if kind == "local":
+        import concurrent.futures
+        import multiprocessing
+
+        return concurrent.futures.ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context(
+            "spawn"), initializer=_die_with_parent)
+    try:
+        import submitit
+    except ImportError:
+        raise ConfigError(f"executor: {kind} needs submitit; pip install \"mjx-emp[cluster]\"") from None
+    if kind == "submitit-local":
+        executor = submitit.LocalExecutor(folder=str(folder))
+        executor.update_parameters(timeout_min=int(slurm.get("timeout_min", 24 * 60)))
+        return executor
+    executor = submitit.AutoExecutor(folder=str(folder), cluster="slurm")
+    try:
+        executor.update_parameters(**slurm)
+    except (TypeError, ValueError) as err:
+        raise ConfigError(f"spec: slurm: {err}") from None
+    return executor
+
+
+def sweep(spec_path: str, runs: str = "", results: str = "", workers: int = 1, executor: str = "local",
+          dry_run: bool = False, report: Callable[[str], None] = print) -> list[dict]:
+    """Run a spec: every (row, seed) trained, resumed or left alone, its phase 2, its evaluation
+    row appended to the store. Returns the rows this call wrote."""
+    if executor not in EXECUTORS:
+        raise ConfigError(f"executor: {executor!r} is unknown; allowed: {', '.join(EXECUTORS)}")
+    if workers < 1:
+        raise ConfigError(f"workers: must be >= 1; got {workers}")
+    spec = load_spec(spec_path)
+    runs_root = Path(runs or spec.runs)
+    results_path = Path(results or Path(RESULTS_DIR) / f"{spec.name}.jsonl")
+    command = shlex.join(["mjx-emp", "sweep", spec_path, "--runs", str(runs_root), "--results", str(results_path)])
+    todo = plan(spec, runs_root, results_path, command)
+    report(f"sweep {spec.name}: {len(spec.rows)} rows, {todo.total} runs; {len(todo.current)} evaluated already, "
+           f"{todo.total - len(todo.current)} to do in {len(todo.jobs)} job(s); runs in {runs_root / spec.name}, "
+           f"rows to {results_path}")
+    if dry_run or not todo.jobs:
+        return []
+    (runs_root / spec.name).mkdir(parents=True, exist_ok=True)
+    written: list[dict] = []
+    started = time.monotonic()
+    pool = _executor(executor, workers, runs_root / spec.name / "submitit", spec.slurm)
+    done_runs = len(todo.current)
+    try:
+        futures = {pool.submit(run_job, job): job for job in todo.jobs}
+        for job, rows in _as_completed(futures, executor):
+            for row in rows:
+                append_row(results_path, row)
+            written += rows
+            done_runs += len(rows)
+            elapsed = time.monotonic() - started
+            left = todo.total - done_runs
+            per_run = elapsed / max(1, done_runs - len(todo.current))
+            eta = f"; about {_duration(per_run * left / workers)} left" if left else ""
+            report(f"[{done_runs}/{todo.total} runs] row {job.row.name}: {'; '.join(rows[0]['evaluation']['did']) or 'evaluated'}"
+                   f" ({_duration(elapsed)} so far{eta}); log {job.log}")
+    finally:
+        if hasattr(pool, "shutdown"):
+            pool.shutdown(wait=True, cancel_futures=True)
+    return written
+
+
+def _as_completed(futures: dict, executor: str) -> Iterator[tuple[Job, list[dict]]]:
+    """(job, its rows) as jobs finish; a job that fails raises here, naming its row and log."""
+    if executor == "local":
+        import concurrent.futures
+
+        waiting = concurrent.futures.as_completed(futures)
+    else:
+        waiting = _submitit_completed(list(futures))
+    for future in waiting:
+        job = futures[future]
+        try:
+            rows = future.result()
+        except ConfigError as err:
+            raise ConfigError(f"{err} (log: {job.log})") from None
+        except Exception as err:  # a worker's failure: its row is named, its log holds the traceback
+            raise RuntimeError(f"row {job.row.name!r} failed ({type(err).__name__}: {err}); see {job.log}") from err
+        yield job, rows
+
+
+def _submitit_completed(pending: list) -> Iterator[Any]:
+    while pending:
+        for future in list(pending):
+            if future.done():
+                pending.remove(future)
+                yield future
+        if pending:
+            time.sleep(1.0)
+
+
+def _duration(seconds: float) -> str:
+    if seconds < 90:
+        return f"{seconds:.0f} s"
+    if seconds < 5400:
+        return f"{seconds / 60:.0f} min"
+    return f"{seconds / 3600:.1f} h"
+
+
+def describe_plan(spec: Spec) -> Iterator[str]:
+    """One line per row of a checked spec: what it trains, how far and what follows."""
+    for row in spec.rows:
+        budget = f", stop at {row.config.max_env_steps:,} env steps" if row.config.max_env_steps else ""
+        overrides = " ".join(f"--{k.replace('_', '-')} {v}" for k, v in row.overrides.items())
+        phase2 = f"; phase 2 {row.phase2_preset}" if row.phase2 is not None else ""
+        yield (f"  {row.name}: {row.preset} {overrides}".rstrip() + f", seeds {list(row.seeds)}, "
+               f"{row.config.epochs} epochs{budget}{phase2}; eval {row.episodes} episodes")
+
