@@ -26,7 +26,7 @@ import tyro
 class Args:
     """Compile-cache benchmark."""
 
-    presets: tuple[str, ...] = ("point-mass-k1", "ant-field-cpu-k1", "metra-ant-field-cpu")
+    presets: tuple[str, ...] = ("point-mass-k1", "ant-field-k1-cpu", "metra-ant-field-cpu")
     out: str = ""
     """JSON output path; empty means benchmarks/results/compile_cache_<backend>.json."""
 

@@ -6,7 +6,7 @@ Steps, each on every MJX backend that can run here (``jax``; ``warp`` where mujo
 CUDA device are present):
 1. ``rollout``: raw batched ``mjx.step`` and the one-scan k = 1..3 rollout on the Ant at
    B = 4096, 16384 and 32768 (``benchmarks/rollout.py``'s measurement);
-2. ``train``: compile seconds, epoch seconds and env steps/s of ``ant-field-small-k1``;
+2. ``train``: compile seconds, epoch seconds and env steps/s of ``ant-field-k1-paper-small``;
 3. ``seeds``: 1, 4 and 8 seeds of it in one vmapped program (``benchmarks/seeds.py``'s timing);
 4. ``memory``: the preflight's estimate (state and one epoch's working set) against the
    device's memory; ``train`` adds the device's peak after its epochs (run ``memory`` first,
@@ -44,7 +44,7 @@ from mjx_emp.errors import ConfigError  # noqa: E402
 from mjx_emp.run.preflight import available_bytes, state_bytes, working_set_bytes  # noqa: E402
 from mjx_emp.run.seeds import SeedGroup  # noqa: E402
 
-PRESET = "ant-field-small-k1"
+PRESET = "ant-field-k1-paper-small"
 
 
 @dataclasses.dataclass

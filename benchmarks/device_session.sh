@@ -1,7 +1,7 @@
 #!/bin/bash
 # One lease of a GPU machine in one command: a smoke test that stops early (and cheaply) if the
 # machine's packages cannot run the library, the prepared check (benchmarks/device_check.py), then
-# the training rows (ROWS, default ant-field-small-k1 and half-cheetah-small-k1) side by side for the
+# the training rows (ROWS, default ant-field-k1-paper-small and half-cheetah-field-k1-paper-small) side by side for the
 # time that is left, and, when PHASE2_S > 0, each row's phase 2 and `mjx-emp eval` in the last PHASE2_S
 # seconds. Everything lands in $OUT: versions.txt (the settings, the GPU, the packages), smoke.log,
 # device_check_gpu.json, check.log, and per row <preset>.log, <preset>.metrics.jsonl, <preset>.skills.tar
@@ -11,7 +11,7 @@
 # which travel inside each run's skills export (a lease returns at most 8 files). See docs/gpu.md.
 #
 #   OUT=/tmp/out TOTAL_S=560 CHECK_S=300 bash benchmarks/device_session.sh
-#   OUT=/tmp/out TOTAL_S=540 CHECK_S=0 PHASE2_S=200 ROWS=ant-field-small-k1 \
+#   OUT=/tmp/out TOTAL_S=540 CHECK_S=0 PHASE2_S=200 ROWS=ant-field-k1-paper-small \
 #     TRAIN_FLAGS="--solver-iterations 4 --critic-layer-norm" bash benchmarks/device_session.sh
 #   DRY=1 OUT=/tmp/out TOTAL_S=240 CHECK_S=150 bash benchmarks/device_session.sh   # tiny sizes, one row
 #
@@ -23,7 +23,7 @@ OUT=${OUT:-/tmp/device_out}
 TOTAL_S=${TOTAL_S:-560}  # seconds this script may take, all steps together
 CHECK_S=${CHECK_S:-300}  # of which the prepared check may take at most this many; 0 skips it
 PHASE2_S=${PHASE2_S:-0}  # of which the rows' phase 2 and eval take the last this many; 0: none
-ROWS=${ROWS:-ant-field-small-k1 half-cheetah-small-k1}  # presets trained side by side
+ROWS=${ROWS:-ant-field-k1-paper-small half-cheetah-field-k1-paper-small}  # presets trained side by side
 TRAIN_FLAGS=${TRAIN_FLAGS:-}  # config flags for every row, e.g. --solver-iterations 4
 SEEDS=${SEEDS:-}  # seeds trained together in each row's one program; empty: the preset's own seed
 DRY=${DRY:-0}

@@ -10,7 +10,7 @@ and epoch time, peak resident memory and the metrics line (on a 2-core CPU this 
 Markdown table and writes JSON (default ``benchmarks/results/paper_shapes_<backend>.json``).
 
     python benchmarks/paper_shapes.py
-    python benchmarks/paper_shapes.py --epoch ant-field-small-k1 --phase2-epoch ant-field-small-k1
+    python benchmarks/paper_shapes.py --epoch ant-field-k1-paper-small --phase2-epoch reach-ant-field-k1-paper-small
 """
 
 from __future__ import annotations
@@ -27,6 +27,7 @@ import jax
 import tyro
 
 from mjx_emp.algos.he.presets import PRESETS
+from mjx_emp.algos.names import parse_preset_name
 from mjx_emp.algos.registry import make_agent
 from mjx_emp.phase2.build import make_phase2_trainer
 from mjx_emp.phase2.presets import PHASE2_PRESETS
@@ -40,11 +41,11 @@ GPUS = {"80 GB": 80e9, "141 GB": 141e9}
 class Args:
     """Memory of the paper-scale presets, and optionally one full-shape epoch."""
 
-    compile: tuple[str, ...] = ("ant-field-small-k1", "half-cheetah-small-k1")
+    compile: tuple[str, ...] = ("ant-field-k1-paper-small", "half-cheetah-field-k1-paper-small")
     """Phase-1 presets whose epoch is compiled at full shape (nothing runs): compile time and
     XLA's own memory figures for the program (arguments, outputs, temporaries)."""
     epoch: tuple[str, ...] = ()
-    """Phase-1 presets to run one real epoch of at full shape (e.g. ant-field-small-k1)."""
+    """Phase-1 presets to run one real epoch of at full shape (e.g. ant-field-k1-paper-small)."""
     phase2_epoch: tuple[str, ...] = ()
     """Phase-2 presets to run one real epoch of at full shape, over freshly initialised (untrained)
     skills of their phase-1 preset: the shapes and the work are a trained run's."""
@@ -133,7 +134,7 @@ def gib(count: float) -> str:
 
 
 def main(args: Args) -> None:
-    table1 = [name for name, (description, _) in PRESETS.items() if description.startswith("Table 1")]
+    table1 = [name for name in PRESETS if (parse_preset_name(name).size or "").startswith("paper")]
     table2 = [name for name, (_, phase1, _) in PHASE2_PRESETS.items() if phase1 in table1]
     rows = []
     for name in table1:

@@ -12,7 +12,7 @@ and wall seconds (training only, compile included; the confirmations' time is ex
 and reported apart) of the first confirmed epoch, or ``reached: false`` with the run's
 best smoothed point if the budget (``--max-env-steps``, ``--max-minutes``) ends first. Run it alone: timings
 shared with another job are not the figure. ``python benchmarks/time_to_quality.py
---presets ant-field-cpu-k1 --seeds 0``.
+--presets ant-field-k1-cpu --seeds 0``.
 """
 
 from __future__ import annotations
@@ -28,7 +28,8 @@ import jax
 import tyro
 
 from mjx_emp.algos.he.agent import HEAgent
-from mjx_emp.algos.registry import all_presets
+from mjx_emp.algos.registry import all_presets, preset_or_retired_config
+from mjx_emp.algos.retired import RETIRED
 from mjx_emp.run.evaluate import phase1_figures
 
 
@@ -36,7 +37,7 @@ from mjx_emp.run.evaluate import phase1_figures
 class Args:
     """Env steps and minutes until a target box at a target success."""
 
-    presets: tuple[str, ...] = ("ant-field-cpu-k1",)
+    presets: tuple[str, ...] = ("ant-field-k1-cpu",)
     seeds: tuple[int, ...] = (0,)
     target_volume: float = 16.0
     """Top box volume to reach (m^2 on the Ant, m on the Half Cheetah)."""
@@ -67,7 +68,7 @@ def smoothed(curve: list[tuple[float, float]], window: int) -> float:
 
 def time_to_quality(preset: str, seed: int, args: Args) -> dict:
     """One row: when (env steps, wall seconds) PRESET's seed SEED first met the target, confirmed."""
-    cfg = dataclasses.replace(all_presets()[preset][1], seed=seed)
+    cfg = dataclasses.replace(preset_or_retired_config(preset), seed=seed)  # retired names rerun their rows
     trainer = HEAgent(cfg)
     start = time.perf_counter()
     state = trainer.init()
@@ -148,7 +149,7 @@ def main(args: Args) -> None:
         print(f"wrote {out}")
         return
     for preset in args.presets:
-        if preset not in presets:
+        if preset not in presets and preset not in RETIRED:
             raise SystemExit(f"presets: {preset!r} is unknown; allowed values: {sorted(presets)}")
         for seed in args.seeds:
             row = time_to_quality(preset, seed, args)

@@ -36,7 +36,7 @@ import tyro
 
 from mjx_emp.algos.he.agent import MODE_GC, TRAIN_EPOCH_TRACE, HEAgent
 from mjx_emp.algos.he.config import HEConfig
-from mjx_emp.algos.he.presets import PRESETS
+from mjx_emp.algos.registry import preset_or_retired_config
 from mjx_emp.rollout.hierarchy import jit_init_rollout, jit_rollout
 from mjx_emp.run.checkpoint import Checkpoints
 from mjx_emp.tracing import traces
@@ -46,8 +46,8 @@ from mjx_emp.tracing import traces
 class Args:
     """Training-epoch throughput and compile-time benchmark."""
 
-    presets: tuple[str, ...] = ("point-mass-k1", "point-mass-k2", "ant-field-small-k1",
-                                "ant-field-big-k2", "ant-field-xl-k3")
+    presets: tuple[str, ...] = ("point-mass-k1", "point-mass-k2", "ant-field-k1-paper-small",
+                                "ant-field-k2-paper-big", "ant-field-k3-paper-xl")
     num_envs: int = 0
     """Environments per collection; 0 keeps each preset's value on GPU and uses 64 on CPU."""
     hidden: tuple[int, ...] = ()
@@ -153,7 +153,7 @@ def main(args: Args) -> None:
     backend = jax.default_backend()
     rows = []
     for name in args.presets:
-        cfg = PRESETS[name][1]
+        cfg = preset_or_retired_config(name)  # a retired name reruns the rows recorded under it
         num_envs = args.num_envs or (cfg.num_envs if backend == "gpu" else min(cfg.num_envs, 64))
         cfg = dataclasses.replace(cfg, num_envs=num_envs, batch_size=min(cfg.batch_size, 256),
                                   hidden=tuple(args.hidden) or cfg.hidden,

@@ -29,7 +29,8 @@ import jax
 import numpy as np
 import tyro
 
-from mjx_emp.algos.registry import GOAL_SPACES, algorithm_of, all_presets, skill_kind
+from mjx_emp.algos.registry import GOAL_SPACES, algorithm_of, all_presets, preset_or_retired_config, skill_kind
+from mjx_emp.algos.retired import RETIRED
 from mjx_emp.commands import Phase2Experiment, ResumeExperiment, TrainExperiment
 from mjx_emp.envs.registry import DOMAINS
 from mjx_emp.metrics import PHASE2_DIAGNOSTICS, PHASE2_REQUIRED_FIGURES, coverage_cells, mean_and_stderr
@@ -89,11 +90,13 @@ def train_or_resume(base: Path, preset: str, seed: int, epochs: int | None,
     """The run directory of (preset, seed), trained to its epoch count or ``max_env_steps``
     (with GCRL's box half-width replaced when ``goal_half_width`` is given). A run already there
     resumes to its own epoch count and budget unless ``epochs`` or ``max_env_steps`` moves them,
-    so evaluating a finished run never trains it further by surprise."""
+    so evaluating a finished run never trains it further by surprise. A retired preset name
+    (:data:`mjx_emp.algos.retired.RETIRED`) trains the config it had, so that the commands that
+    produced the recorded rows still reproduce them."""
     presets = all_presets()
-    if preset not in presets:
+    if preset not in presets and preset not in RETIRED:
         raise SystemExit(f"presets: {preset!r} is unknown; allowed values: {sorted(presets)}")
-    config = dataclasses.replace(presets[preset][1], seed=seed)
+    config = dataclasses.replace(preset_or_retired_config(preset), seed=seed)
     if epochs is not None:
         config = dataclasses.replace(config, epochs=epochs)
     if max_env_steps is not None:
@@ -265,9 +268,10 @@ def phase2_curve(run_dir: Path) -> tuple[np.ndarray, np.ndarray] | None:
 
 def preset_and_box(preset: str) -> tuple[Any, float | None]:
     """A row's preset name read as (the preset's config, the ``-wW`` box half-width it was run
-    with, None where it has no such suffix)."""
+    with, None where it has no such suffix). Rows recorded under a retired name get the config
+    that name had."""
     name, width = re.fullmatch(r"(.*?)(?:-w([0-9.]+))?", preset).groups()
-    return all_presets()[name][1], float(width) if width else None
+    return preset_or_retired_config(name), float(width) if width else None
 
 
 def chart_label(preset: str) -> str:

@@ -1,6 +1,6 @@
 """Hierarchical Empowerment in the cages on a CPU: does the goal space follow the walls and the button?
 
-For every (preset, seed) (``ant-cage-cpu-k1``, ``half-cheetah-cage-cpu-k1``) trains phase 1
+For every (preset, seed) (``ant-cage-k1-cpu``, ``half-cheetah-cage-k1-cpu``) trains phase 1
 and phase 2 as ``baselines.py`` does (or resumes BASE/<preset>-s<seed>) and writes
 ``robots_cpu.py``'s row (top box, success, coverage, the box's growth per epoch in ``curve``,
 phase 2) with ``cage``: the walls' inner bounds and the button, and every level's goal-space box
@@ -13,7 +13,7 @@ outgrows the walls once they open. Phase 2's greedy episodes are counted goal by
 (``cage["phase2"]``): how many goals lie beyond the walls (farther than eps outside them, so
 only a robot that left the cage can reach them), how many of those and of the others were
 reached, and how often an episode pressed the button.
-``python experiments/cages.py --presets ant-cage-cpu-k1 --seeds 0``; rows merge into ``--out``, and
+``python experiments/cages.py --presets ant-cage-k1-cpu --seeds 0``; rows merge into ``--out``, and
 ``--report-only`` prints the table of every row there.
 """
 
@@ -37,7 +37,7 @@ from mjx_emp.run.evaluate import greedy_first_episodes
 class Args:
     """Cage presets over seeds: phase 1, phase 2 and where the top box lies."""
 
-    presets: tuple[str, ...] = ("ant-cage-cpu-k1", "half-cheetah-cage-cpu-k1")
+    presets: tuple[str, ...] = ("ant-cage-k1-cpu", "half-cheetah-cage-k1-cpu")
     seeds: tuple[int, ...] = (0,)
     epochs: int | None = None
     """Override the presets' epoch counts (a shorter budget); None keeps them for a new run and a run's own count

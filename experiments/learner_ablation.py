@@ -24,10 +24,14 @@ from equal_steps import read_curve_at
 from robots_cpu import evaluate_run
 
 from mjx_emp.algos.he.config import HEConfig
-from mjx_emp.algos.he.presets import ANT_FIELD_CPU_K1
+from mjx_emp.algos.registry import retired_config
 from mjx_emp.commands import ResumeExperiment, TrainExperiment
 from mjx_emp.metrics import mean_and_stderr
 from mjx_emp.run import jobs, store
+
+ANT_FIELD_CPU_K1 = retired_config("ant-field-cpu-k1")
+"""The learner every variant changes: the retired ``ant-field-cpu-k1`` (the model file's one
+solver iteration, a plain critic), whose rows the reference curves are."""
 
 LEARNER_OPTIONS: dict[str, dict] = {
     "base": {},

@@ -11,8 +11,8 @@ phase-1 agents with the CLI's own functions:
   length in primitive actions this way (e.g. Half Cheetah Big: n = 200 against
   n = (20, 10)).
 
-Then phase 2: ``point-mass-k1`` (2.4 x 2.4 region, inside k1's learned goal space) on k1,
-and the 8 x 8 and 16 x 16 regions (``point-mass-wide-*``, ``point-mass-wider-*``,
+Then phase 2: ``reach-point-mass`` (2.4 x 2.4 region, inside k1's learned goal space) on k1,
+and the 8 x 8 and 16 x 16 regions (``reach-point-mass-wide``, ``reach-point-mass-wider``,
 3 attempts) on all three agents. Each phase-2 policy is evaluated greedily on 400 goals
 before and after training, and the figures are aggregated over seeds (mean and standard
 error).
@@ -43,9 +43,9 @@ AGENTS: dict[str, HEConfig] = {
 }
 # (task name, phase-2 preset, agents it runs on)
 TASKS = (
-    ("inside", "point-mass-k1", ("k1",)),
-    ("wide", "point-mass-wide-k2", ("k1", "k2", "k1-n50")),
-    ("wider", "point-mass-wider-k2", ("k1", "k2", "k1-n50")),
+    ("inside", "reach-point-mass", ("k1",)),
+    ("wide", "reach-point-mass-wide", ("k1", "k2", "k1-n50")),
+    ("wider", "reach-point-mass-wider", ("k1", "k2", "k1-n50")),
 )
 
 

@@ -9,7 +9,7 @@ of goal space visited by 48 greedy top-level skills). Rows carry ``preset``, ``s
 included), ``top_area`` (m^2 for Ant, m for Half Cheetah), ``success``,
 ``coverage_cells`` and, where RUN_DIR/phase2 holds a phase-2 run (`mjx-emp phase2
 RUN_DIR`), ``phase2``: its mean minimum distance to goal and success.
-``python experiments/robots_cpu.py --presets ant-field-cpu-k1 --seeds 0 1 2 3``;
+``python experiments/robots_cpu.py --presets ant-field-k1-cpu --seeds 0 1 2 3``;
 rows are merged into ``--out`` (one per preset and seed).
 """
 
@@ -32,7 +32,7 @@ from mjx_emp.run.store import read_metrics
 class Args:
     """Robot presets over seeds, evaluated the same way."""
 
-    presets: tuple[str, ...] = ("ant-field-cpu-k1",)
+    presets: tuple[str, ...] = ("ant-field-k1-cpu",)
     seeds: tuple[int, ...] = (0, 1, 2, 3)
     epochs: int | None = None
     """Override the presets' epoch counts (a shorter budget); None keeps them for a new run and a run's own count

@@ -18,7 +18,9 @@ from typing import Annotated, Any, Union
 
 import tyro
 
+from mjx_emp.algos.names import listing_lines
 from mjx_emp.algos.registry import LATENT_SKILLS, algorithm_of, all_presets
+from mjx_emp.algos.retired import RETIRED, Retired
 from mjx_emp.checks import check_levels
 from mjx_emp.commands import (
     EvalExperiment,
@@ -40,7 +42,7 @@ from mjx_emp.errors import (
     TrainingDiverged,
     WriteError,
 )
-from mjx_emp.phase2.presets import PHASE2_PRESETS, phase2_preset_for
+from mjx_emp.phase2.presets import PHASE2_PRESETS, PHASE2_RETIRED, phase2_preset_for
 from mjx_emp.run import jobs, store
 from mjx_emp.run.preflight import explain_out_of_memory
 from mjx_emp.tables import spread_text
@@ -322,14 +324,14 @@ def print_skill_report(report: dict, runs: list[dict]) -> None:
 
 
 def with_phase2_preset(args: list[str]) -> list[str]:
-    """``phase2`` arguments with a preset first: given ``RUN_DIR ...``, the run's own preset.
-
-    The preset is the Table-2 row whose phase-1 preset has the run's domain and n.
+    """``phase2`` arguments with a preset first: given ``RUN_DIR ...``, the run's own task
+    (:func:`mjx_emp.phase2.presets.phase2_preset_for`: of its preset, else of its domain, size
+    and depth). A retired task name is refused with the task that replaced it.
     """
     if not args or args[0] in PHASE2_PRESETS or args[0].startswith("-"):
         return args
-    if not Path(args[0]).exists() and close_names(args[0], PHASE2_PRESETS):
-        raise unknown_preset(args[0], PHASE2_PRESETS, "mjx-emp phase2 PRESET RUN_DIR")
+    if not Path(args[0]).exists() and (args[0] in PHASE2_RETIRED or close_names(args[0], PHASE2_PRESETS)):
+        raise unknown_preset(args[0], PHASE2_PRESETS, "mjx-emp phase2 PRESET RUN_DIR", PHASE2_RETIRED)
     skills = store.read_run_config(Path(args[0]), "run_dir")
     preset = phase2_preset_for(skills)
     if preset is None:
@@ -345,8 +347,12 @@ def close_names(name: str, known) -> list[str]:
     return difflib.get_close_matches(name, list(known), n=3, cutoff=0.6)
 
 
-def unknown_preset(name: str, known, usage: str) -> ConfigError:
-    """The error for a preset name that does not exist, suggesting the closest ones."""
+def unknown_preset(name: str, known, usage: str, retired: dict[str, Retired] | None = None) -> ConfigError:
+    """The error for a preset name that does not exist: for a name in ``retired``, the command
+    that gives its config; else the closest names."""
+    if retired and name in retired:
+        return ConfigError(f"preset: {name!r} left the catalogue; its config is "
+                           f"`{usage.replace('PRESET', retired[name].command)}`")
     closest = close_names(name, known)
     hint = f"did you mean {', '.join(closest)}? " if closest else ""
     return ConfigError(f"preset: {name!r} is unknown ({usage}); {hint}`mjx-emp presets` lists all {len(known)}")
@@ -368,7 +374,7 @@ def canonical_args(argv: list[str]) -> list[str]:
     if command == ["train"] and rest and not rest[0].startswith("-"):
         presets = all_presets()
         if rest[0] not in presets:
-            raise unknown_preset(rest[0], presets, "mjx-emp train PRESET")
+            raise unknown_preset(rest[0], presets, "mjx-emp train PRESET", RETIRED)
     return argv
 
 
@@ -381,13 +387,10 @@ def export(exp: ExportExperiment) -> None:
 
 
 def list_presets(_: PresetsExperiment) -> None:
-    """Print every phase-1 and phase-2 preset with its description."""
-    print("phase 1 (mjx-emp train PRESET):")
-    for name, (description, _) in all_presets().items():
-        print(f"  {name:24s} {description}")
-    print("phase 2 (mjx-emp phase2 [PRESET] RUN_DIR):")
-    for name, (description, phase1, _) in PHASE2_PRESETS.items():
-        print(f"  {name:24s} {description} (on {phase1})")
+    """Print the preset catalogue: the name grammar, the recommended recipes first, then the
+    paper's Table-1 configs, the baselines and the phase-2 tasks (`mjx-emp train NAME --help`
+    gives one preset's description and fields)."""
+    print("\n".join(listing_lines(all_presets(), PHASE2_PRESETS)))
 
 
 def preset_commands() -> Any:

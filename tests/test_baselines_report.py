@@ -31,7 +31,7 @@ def test_report_table_gives_mean_std_and_standard_error_per_preset():
 def test_charts_draw_methods_with_and_without_phase2_curves(tmp_path):
     from baselines import draw_charts
 
-    with_curve = {**_row("ant-field-cpu-k1", 0, 1e6, 12, 12.0), "env": "ant_field",
+    with_curve = {**_row("ant-field-k1-cpu", 0, 1e6, 12, 12.0), "env": "ant_field",
                   "phase2_curve": [[0.0, 15.0], [1000.0, 12.0]]}
     without = {**_row("metra-ant-field-cpu", 0, 1e6, 8, 14.0), "env": "ant_field", "run_dir": str(tmp_path / "gone")}
     path = draw_charts([with_curve, without], tmp_path / "chart.png")
@@ -39,14 +39,16 @@ def test_charts_draw_methods_with_and_without_phase2_curves(tmp_path):
 
 
 def test_chart_labels_name_the_method_and_a_hand_set_box_by_its_side():
-    assert chart_label("ant-field-cpu-k2") == "HE k=2"
+    assert chart_label("ant-field-k2-cpu") == "HE k=2"
     assert chart_label("metra-ant-field-cpu") == "METRA"
-    assert chart_label("gcrl-ant-field-cpu") == "GCRL 4x4 m"  # the preset's own box, half-width 2 m
-    assert chart_label("gcrl-ant-field-cpu-w0.5") == "GCRL 1x1 m"
-    assert chart_label("gcrl-half-cheetah-cpu-w15") == "GCRL 30 m box"  # one goal dimension
+    assert chart_label("gcrl-ant-field-k1-cpu") == "GCRL 4x4 m"  # the preset's own box, half-width 2 m
+    assert chart_label("gcrl-ant-field-k1-cpu-w0.5") == "GCRL 1x1 m"
+    assert chart_label("gcrl-half-cheetah-field-k1-cpu-w15") == "GCRL 30 m box"  # one goal dimension
+    assert chart_label("gcrl-half-cheetah-cpu-w15") == "GCRL 30 m box"  # a row recorded under a retired name
 
 
 def test_presets_that_share_a_label_are_told_apart_by_the_fields_where_they_differ_from_the_base():
+    """Rows recorded under retired names (the variants left the catalogue) keep their configs."""
     labels = chart_labels(["ant-field-cpu-k1-4iter-ln-gs0.25", "ant-field-cpu-k1-4iter-ln", "metra-ant-field-cpu",
                            "gcrl-ant-field-cpu-w2", "gcrl-ant-field-cpu-w8", "ant-field-cpu-k1-4iter-ln-resets-start",
                            "ant-field-cpu-k1-4iter-ln-tilt1"])
@@ -57,9 +59,9 @@ def test_presets_that_share_a_label_are_told_apart_by_the_fields_where_they_diff
 def test_chart_colours_keep_one_hue_per_method_and_never_share_a_colour():
     from matplotlib.colors import rgb_to_hsv, to_rgb
 
-    presets = ["ant-field-cpu-k1", "gcrl-ant-field-cpu-w0.5", "gcrl-ant-field-cpu-w2", "gcrl-ant-field-cpu-w8",
-               "gcrl-ant-field-cpu-w20", "metra-ant-field-cpu", "diayn-ant-field-cpu", "hidio-ant-field-cpu",
-               "dads-ant-field-cpu"]
+    presets = ["ant-field-k1-cpu", "gcrl-ant-field-k1-cpu-w0.5", "gcrl-ant-field-k1-cpu-w2",
+               "gcrl-ant-field-k1-cpu-w8", "gcrl-ant-field-k1-cpu-w20", "metra-ant-field-cpu", "diayn-ant-field-cpu",
+               "hidio-ant-field-cpu", "dads-ant-field-cpu"]
     colours = chart_colours(presets)
     assert len(set(colours)) == len(presets)
     hues = [rgb_to_hsv(to_rgb(c))[0] for c in colours[1:5]]

@@ -33,8 +33,8 @@ def test_absolute_box_is_placed_about_the_state_and_checked_against_walls_and_bu
     assert not out["within_walls"]
 
 
-@pytest.mark.parametrize("preset", ["ant-cage-cpu-k1", "half-cheetah-cage-cpu-k1", "ant-cage-cpu-k2",
-                                    "half-cheetah-cage-cpu-k2"])
+@pytest.mark.parametrize("preset", ["ant-cage-k1-cpu", "half-cheetah-cage-k1-cpu", "ant-cage-k2-cpu",
+                                    "half-cheetah-cage-k2-cpu"])
 def test_cage_figures_give_the_top_box_at_the_start_with_walls_up_and_gone_and_on_the_button(preset):
     cfg = dataclasses.replace(PRESETS[preset][1], num_envs=2, batch_size=8, hidden=(8, 8), replay_capacity=256,
                               gs_replay_capacity=64, start_capacity=64)
@@ -85,10 +85,10 @@ def test_beyond_walls_counts_goals_only_a_robot_outside_the_cage_can_reach():
 def test_beyond_walls_figures_count_greedy_phase_2_episodes_in_the_ant_cage():
     """An untrained Ant-cage phase 2 (tiny networks): every episode is counted once, with its goal
     from the phase-2 region."""
-    cfg = dataclasses.replace(PRESETS["ant-cage-cpu-k1"][1], num_envs=2, batch_size=8, hidden=(8, 8),
+    cfg = dataclasses.replace(PRESETS["ant-cage-k1-cpu"][1], num_envs=2, batch_size=8, hidden=(8, 8),
                               replay_capacity=256, gs_replay_capacity=64, start_capacity=64)
     agent = make_agent(cfg)
-    phase2_cfg = dataclasses.replace(PHASE2_PRESETS["ant-cage-cpu-k1"][2], n=2, num_envs=2, hidden=(8,),
+    phase2_cfg = dataclasses.replace(PHASE2_PRESETS["reach-ant-cage-cpu"][2], n=2, num_envs=2, hidden=(8,),
                                      replay_capacity=64, batch_size=8)
     trainer = Phase2Trainer(agent, phase2_cfg)
     state = trainer.init(agent.init())
@@ -108,12 +108,12 @@ def _cage_row(preset: str, seed: int, phase2: dict | None, counts: dict | None) 
 def test_report_table_gives_each_cage_row_its_boxes_phase_2_policies_and_goals_beyond_the_walls():
     phase2 = {"min_distance": 2.764, "aimed": {"min_distance": 4.31}, "random": {"min_distance": 6.16}}
     counts = {"goals_beyond": 145, "reached_beyond": 23, "goals_within": 255, "reached_within": 225}
-    rows = [_cage_row("half-cheetah-cage-cpu-k2", 0, phase2, counts), _cage_row("ant-cage-cpu-k1", 1, None, None),
-            _cage_row("ant-cage-cpu-k1", 0, {"min_distance": 3.0}, None)]
+    rows = [_cage_row("half-cheetah-cage-k2-cpu", 0, phase2, counts), _cage_row("ant-cage-k1-cpu", 1, None, None),
+            _cage_row("ant-cage-k1-cpu", 0, {"min_distance": 3.0}, None)]
     lines = report_table(rows).splitlines()
-    assert [line.split(" | ")[0:2] for line in lines[2:]] == [["| ant-cage-cpu-k1", "0"], ["| ant-cage-cpu-k1", "1"],
-                                                             ["| half-cheetah-cage-cpu-k2", "0"]]  # sorted
-    assert lines[4] == ("| half-cheetah-cage-cpu-k2 | 0 | 2.15 M | 12.1 (within), 0.94 | 20.0 (past the walls) | "
+    assert [line.split(" | ")[0:2] for line in lines[2:]] == [["| ant-cage-k1-cpu", "0"], ["| ant-cage-k1-cpu", "1"],
+                                                             ["| half-cheetah-cage-k2-cpu", "0"]]  # sorted
+    assert lines[4] == ("| half-cheetah-cage-k2-cpu | 0 | 2.15 M | 12.1 (within), 0.94 | 20.0 (past the walls) | "
                         "2.76, 4.31, 6.16 | 23 of 145 | 225 of 255 |")
     assert "| 3.00, -, - | - | - |" in lines[2]  # a phase 2 without the scripted policies' figures
     assert lines[3].endswith("| 20.0 (past the walls) | - | - | - |")  # no phase 2

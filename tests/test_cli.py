@@ -52,10 +52,10 @@ def cli(*args: str) -> subprocess.CompletedProcess:
          "invalid configuration: num_devices: must be >= 0 (0: every local device); got -1"),
         (["resume", "/nonexistent/mjx-emp-run", "--num-devices", "-2"], "num_devices: must be >= 0"),
         (["resume", "/nonexistent/mjx-emp-run", "--epochs", "0"], "epochs: must be >= 1; got 0"),
-        (["train", "ant-feld-cpu-k1"], "preset: 'ant-feld-cpu-k1' is unknown (mjx-emp train PRESET); did you mean "
-                                       "ant-field-cpu-k1,"),
-        (["phase2", "point-mas-k1", "runs/x"], "preset: 'point-mas-k1' is unknown (mjx-emp phase2 PRESET RUN_DIR); "
-                                               "did you mean point-mass-k1"),
+        (["train", "ant-feld-k1-cpu"], "preset: 'ant-feld-k1-cpu' is unknown (mjx-emp train PRESET); did you mean "
+                                       "ant-field-k1-cpu,"),
+        (["phase2", "reach-point-mas", "runs/x"], "preset: 'reach-point-mas' is unknown (mjx-emp phase2 PRESET "
+                                                  "RUN_DIR); did you mean reach-point-mass"),
         (["eval", "/nonexistent/mjx-emp-run", "--episodes", "0"],
          "invalid configuration: episodes: must be >= 1; got 0"),
         (["eval", "/nonexistent/mjx-emp-run"],
@@ -103,7 +103,7 @@ def test_help_and_a_typo_list_every_command(args):
 
 
 @pytest.mark.parametrize("args", [["eval", "--help"], ["plot", "--help"], ["render", "--help"], ["resume", "--help"],
-                                  ["phase2", "point-mass-k1", "--help"]])
+                                  ["phase2", "reach-point-mass", "--help"]])
 def test_run_directories_are_named_run_dir_in_help(args):
     result = cli(*args)
     assert result.returncode == 0, result.stderr
@@ -157,8 +157,8 @@ def test_unknown_preset_exits_2_listing_presets():
 def test_presets_lists_every_table_1_row():
     result = cli("presets")
     assert result.returncode == 0
-    for name in ("point-mass-k1", "ant-field-small-k1", "ant-field-xl-k3", "half-cheetah-big-k2",
-                 "ant-cage-k2", "half-cheetah-cage-k1"):
+    for name in ("point-mass-k1", "ant-field-k1-paper-small", "ant-field-k3-paper-xl",
+                 "half-cheetah-field-k2-paper-big", "ant-cage-k2-paper", "half-cheetah-cage-k1-paper"):
         assert name in result.stdout
 
 

@@ -177,25 +177,30 @@ def test_every_table_2_preset_builds_on_a_phase_1_preset_of_the_same_domain():
     for name, (_, phase1, cfg) in PHASE2_PRESETS.items():
         skills = PRESETS[phase1][1]
         check_phase2_config(cfg, goal_size=len(DOMAINS[skills.env].goal_qpos))
-        if name.startswith(("ant", "half")):
-            assert name == phase1
+        if "-paper" in name:
+            assert name == f"reach-{phase1}"
         assert not cfg.aim_prior and not cfg.learn_from_resets, name  # options beyond the paper stay off
-    assert phase2_preset_for(PRESETS["ant-field-xl-k3"][1]) == "ant-field-xl-k3"
+    assert phase2_preset_for(PRESETS["ant-field-k3-paper-xl"][1]) == "reach-ant-field-k3-paper-xl"
     # Two presets share Ant Field's n = (20,): each run gets the task sized for its own preset.
-    assert phase2_preset_for(PRESETS["ant-field-small-k1"][1]) == "ant-field-small-k1"
-    assert phase2_preset_for(dataclasses.replace(PRESETS["ant-field-cpu-k1"][1], seed=3)) == "ant-field-cpu-k1"
-    assert phase2_preset_for(PRESETS["point-mass-k2"][1]) == "point-mass-wide-k2"
-    # A variant of a preset without a task of its own gets the task of its domain, n and scale.
-    assert phase2_preset_for(PRESETS["half-cheetah-cpu-k2-rep4"][1]) == "half-cheetah-cpu-k2"
-    assert phase2_preset_for(PRESETS["ant-field-cpu-k2-4iter-ln-rep4"][1]) == "ant-field-cpu-k2"
-    assert phase2_preset_for(dataclasses.replace(PRESETS["point-mass-k2"][1], n=(7, 7))) is None
+    assert phase2_preset_for(PRESETS["ant-field-k1-paper-small"][1]) == "reach-ant-field-k1-paper-small"
+    assert phase2_preset_for(dataclasses.replace(PRESETS["ant-field-k1-cpu"][1], seed=3)) == "reach-ant-field-cpu"
+    assert phase2_preset_for(PRESETS["point-mass-k2"][1]) == "reach-point-mass-wide"
+    # A run without a task of its own preset gets the task of its domain, scale and depth, else of its domain and
+    # scale: every depth of a CPU recipe shares the domain's CPU task.
+    assert phase2_preset_for(PRESETS["half-cheetah-field-k2-cpu"][1]) == "reach-half-cheetah-field-cpu"
+    assert phase2_preset_for(PRESETS["ant-field-k2-cpu"][1]) == "reach-ant-field-cpu"
+    assert phase2_preset_for(dataclasses.replace(PRESETS["point-mass-k2"][1], n=(7, 7))) == "reach-point-mass-wide"
+    assert phase2_preset_for(dataclasses.replace(PRESETS["point-mass-k2"][1], env="moon")) is None
     # Baselines get their domain's one-level task at their own scale (CPU or GPU).
     baselines = all_presets()
-    for algo in ("gcrl", "metra", "dads"):
-        assert phase2_preset_for(baselines[f"{algo}-ant-field-cpu"][1]) == "ant-field-cpu-k1"
-        assert phase2_preset_for(baselines[f"{algo}-ant-field-small"][1]) == "ant-field-small-k1"
-        assert phase2_preset_for(baselines[f"{algo}-half-cheetah-small"][1]) == "half-cheetah-small-k1"
-    cheetah = PHASE2_PRESETS["half-cheetah-big-k2"][2]
+    for algo in ("metra", "dads"):
+        assert phase2_preset_for(baselines[f"{algo}-ant-field-cpu"][1]) == "reach-ant-field-cpu"
+        assert phase2_preset_for(baselines[f"{algo}-ant-field-gpu"][1]) == "reach-ant-field-k1-paper-small"
+        assert phase2_preset_for(baselines[f"{algo}-half-cheetah-field-gpu"][1]) == \
+            "reach-half-cheetah-field-k1-paper-small"
+    assert phase2_preset_for(baselines["gcrl-ant-field-k1-cpu"][1]) == "reach-ant-field-cpu"
+    assert phase2_preset_for(baselines["gcrl-ant-field-k1-gpu"][1]) == "reach-ant-field-k1-paper-small"
+    cheetah = PHASE2_PRESETS["reach-half-cheetah-field-k2-paper-big"][2]
     assert cheetah.region == (450.0,) and cheetah.region_offset[0] > 0  # lies ahead of the start
 
 

@@ -50,8 +50,8 @@ def test_seeds_in_one_program_stop_once_every_seed_has_spent_the_budget(tmp_path
 
 def test_a_budget_is_not_part_of_what_compiles_or_of_which_preset_a_run_belongs_to():
     assert compile_identity(dataclasses.replace(TINY1, max_env_steps=10)) == compile_identity(TINY1)
-    budgeted = dataclasses.replace(PRESETS["ant-field-cpu-k1"][1], seed=3, epochs=400, max_env_steps=960_000)
-    assert phase2_preset_for(budgeted) == "ant-field-cpu-k1"
+    budgeted = dataclasses.replace(PRESETS["ant-field-k1-cpu"][1], seed=3, epochs=400, max_env_steps=960_000)
+    assert phase2_preset_for(budgeted) == "reach-ant-field-cpu"
 
 
 def test_a_budget_below_one_step_is_refused_naming_the_field(tmp_path):

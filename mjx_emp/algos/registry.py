@@ -16,6 +16,7 @@ from mjx_emp.algos.he.config import SHARD_SPLIT as HE_SHARD_SPLIT
 from mjx_emp.algos.he.config import GcrlConfig, HEConfig, check_gcrl_config, check_train_config
 from mjx_emp.algos.he.presets import GCRL_PRESETS
 from mjx_emp.algos.he.presets import PRESETS as HE_PRESETS
+from mjx_emp.algos.retired import REDEFINED, RETIRED
 from mjx_emp.algos.skills.config import SHARD_SPLIT as SKILL_SHARD_SPLIT
 from mjx_emp.algos.skills.config import DadsConfig, DiaynConfig, HidioConfig, MetraConfig, check_skill_config
 from mjx_emp.algos.skills.presets import PRESETS as SKILL_PRESETS
@@ -175,3 +176,19 @@ def all_presets() -> dict[str, tuple[str, Any]]:
             raise ValueError(f"preset names used by two algorithms: {clash}")
         presets.update(algorithm.presets)
     return presets
+
+
+def retired_config(name: str) -> Any:
+    """The config a retired preset name stood for (:data:`mjx_emp.algos.retired.RETIRED`), or
+    the former config of a name the catalogue gave to another (``REDEFINED``): rows recorded
+    under an old name are read with this."""
+    entry = RETIRED.get(name) or REDEFINED.get(name)
+    if entry is None:
+        raise KeyError(f"{name!r} is neither a retired nor a redefined preset name")
+    return entry.apply(all_presets()[entry.preset][1])
+
+
+def preset_or_retired_config(name: str) -> Any:
+    """A preset's config by name: the catalogue's, else the retired name's (:func:`retired_config`)."""
+    presets = all_presets()
+    return presets[name][1] if name in presets else retired_config(name)

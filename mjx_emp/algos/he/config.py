@@ -29,8 +29,9 @@ class HEConfig:
     heading_frame: bool = False
     """Networks see the state and goal offset in the torso's heading frame (Ant domains
     only; see Env.heading_frame). False is the paper's world-frame input, and what every
-    preset uses: on ant-field-cpu-k1 seed 0 heading-frame inputs gave a 4.5 m^2 box at 55 %
-    against 10.6 m^2 at 72 % (docs/learning-on-robots.md)."""
+    preset uses: on the Ant's CPU learner under the model's physics (ant-field-k1-cpu with one
+    solver iteration and a plain critic), seed 0, heading-frame inputs gave a 4.5 m^2 box at
+    55 % against 10.6 m^2 at 72 % (docs/learning-on-robots.md)."""
     solver_iterations: int = 0
     """Constraint-solver iterations of the physics; 0 keeps the model file's (the robots': 1,
     the paper's Brax settings)."""

@@ -1,4 +1,6 @@
-"""Presets of the flat skill learners, ``ALGO-point-mass`` for ALGO in diayn, hidio, dads, metra.
+"""Presets of the flat skill learners, for ALGO in diayn, hidio, dads, metra: ``ALGO-point-mass``,
+``ALGO-ant-field-cpu``, ``ALGO-half-cheetah-field-cpu``, ``ALGO-ant-field-gpu`` and
+``ALGO-half-cheetah-field-gpu`` (names as :mod:`mjx_emp.algos.names`; no levels, so no kK).
 
 Shared choices, with their source: METRA's published code (seohongpark/METRA,
 tests/main.py) for everything SAC (rates 1e-4, initial alpha 0.01, target entropy -|A|/2,
@@ -22,15 +24,17 @@ _POINT_MASS = dict(env="point_mass", skill_dim=2, n=10, epochs=200, num_envs=16,
                    grad_steps=25, batch_size=256, replay_capacity=100_000, min_replay=1_000, hidden=(256, 256))
 
 
-# The robots: skills of n = 20 actions (HE's ant-field-cpu-k1 and half-cheetah-cpu-k1 skill
-# length: 3.75 s on the Ant, 3 s on the Half Cheetah), 300 epochs of 3,200 environment steps
-# and 250 gradient steps each (0.96 M steps; HE's k=1 robot presets simulate 2.0-2.2 M).
+# The robots: skills of n = 20 actions (HE's ant-field-k1-cpu and half-cheetah-field-k1-cpu
+# skill length: 3.75 s on the Ant, 3 s on the Half Cheetah), 300 epochs of 3,200 environment
+# steps and 250 gradient steps each (0.96 M steps; HE's k=1 robot presets simulate 2.0-2.2 M).
+# The Ant runs the constraint solver at 4 iterations, as HE's Ant recipe does.
 _ROBOTS = dict(skill_dim=2, n=20, epochs=300, num_envs=16, collect_steps=20, iterations=10, grad_steps=25,
                batch_size=256, replay_capacity=300_000, min_replay=5_000, hidden=(256, 256))
 
 
-# The GPU rows beside Table 1's Ant Field Small and Half Cheetah Small (HE: skills of n = 20
-# actions, 4096 environments): skills of 20 actions, 4096 environments, METRA's 1024-wide
+# The GPU rows beside Table 1's Ant Field Small and Half Cheetah Small (HE's
+# ant-field-k1-paper-small and half-cheetah-field-k1-paper-small: skills of n = 20 actions,
+# 4096 environments): skills of 20 actions, 4096 environments, METRA's 1024-wide
 # networks and L = 100 prior skills for DADS (METRA's code), 50 gradient steps on
 # minibatches of 1024 per iteration, 500 epochs of 819,200 environment steps (0.41 B).
 # Not run yet: no GPU has been lent to the sessions that built them.
@@ -57,15 +61,13 @@ PRESETS: dict[str, tuple[str, SkillConfig]] = {
     "metra-point-mass": ("METRA: phi under ||phi(s')-phi(s)|| <= 1, unit-length skills", _point_mass(MetraConfig)),
 }
 for _name, _type in (("diayn", DiaynConfig), ("hidio", HidioConfig), ("dads", DadsConfig), ("metra", MetraConfig)):
-    PRESETS[f"{_name}-ant-field-cpu"] = (f"{_name.upper()} on the paper's Ant, skills of 20 actions (CPU)",
-                                         _robot(_type, "ant_field"))
-    PRESETS[f"{_name}-half-cheetah-cpu"] = (f"{_name.upper()} on the paper's Half Cheetah, skills of 20 actions (CPU)",
-                                            _robot(_type, "half_cheetah_field"))
-    PRESETS[f"{_name}-ant-field-cpu-4iter"] = (f"{_name.upper()} on the paper's Ant with 4 solver iterations, as "
-                                               f"ant-field-cpu-k1-4iter (CPU)",
-                                               dataclasses.replace(_robot(_type, "ant_field"), solver_iterations=4))
-    PRESETS[f"{_name}-ant-field-small"] = (f"{_name.upper()} beside Table 1's Ant Field Small (GPU scale)",
-                                           _type(env="ant_field", **_GPU))
-    PRESETS[f"{_name}-half-cheetah-small"] = (f"{_name.upper()} beside Table 1's Half Cheetah Small (GPU scale)",
-                                              _type(env="half_cheetah_field", **_GPU))
+    PRESETS[f"{_name}-ant-field-cpu"] = (f"{_name.upper()} on the paper's Ant, skills of 20 actions, 4 solver "
+                                         f"iterations as ant-field-k1-cpu (CPU)",
+                                         dataclasses.replace(_robot(_type, "ant_field"), solver_iterations=4))
+    PRESETS[f"{_name}-half-cheetah-field-cpu"] = (f"{_name.upper()} on the paper's Half Cheetah, skills of 20 "
+                                                  f"actions (CPU)", _robot(_type, "half_cheetah_field"))
+    PRESETS[f"{_name}-ant-field-gpu"] = (f"{_name.upper()} beside Table 1's Ant Field Small (GPU scale); not "
+                                         f"measured", _type(env="ant_field", **_GPU))
+    PRESETS[f"{_name}-half-cheetah-field-gpu"] = (f"{_name.upper()} beside Table 1's Half Cheetah Small (GPU "
+                                                  f"scale); not measured", _type(env="half_cheetah_field", **_GPU))
 """Name -> (description, config)."""
