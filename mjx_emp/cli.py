@@ -29,8 +29,10 @@ from mjx_emp.commands import (
     PlotExperiment,
     PresetsExperiment,
     RenderExperiment,
+    ReportExperiment,
     ResumeExperiment,
     RolloutExperiment,
+    SweepExperiment,
     TrainExperiment,
 )
 from mjx_emp.errors import (
@@ -175,6 +177,29 @@ def render(exp: RenderExperiment) -> None:
     print(f"{out}: {len(frames)} frames of {exp.width}x{exp.height} (epoch {epoch})")
 
 
+def sweep(exp: SweepExperiment) -> None:
+    """`mjx-emp sweep`: check the spec, say what it holds, then run what is not done."""
+    from mjx_emp.run.sweep import describe_plan, load_spec
+    from mjx_emp.run.sweep import sweep as run_sweep
+
+    spec = load_spec(exp.spec)  # a bad spec exits 2 here, before anything trains
+    for line in describe_plan(spec):
+        print(line)
+    written = run_sweep(exp.spec, exp.runs, exp.results, exp.workers, exp.executor, exp.dry_run)
+    if not exp.dry_run:
+        print(f"sweep {spec.name}: {len(written)} row(s) written this call")
+
+
+def report(exp: ReportExperiment) -> None:
+    """`mjx-emp report`: print a spec's table (and write its figure and block where asked)."""
+    from mjx_emp.report import report_spec
+
+    print(report_spec(exp.spec, exp.results, exp.metrics, exp.baseline, exp.figure, exp.curve, exp.into, exp.block,
+                      exp.reps))
+    if exp.into:
+        print(f"wrote block {exp.block or Path(exp.spec).stem} of {exp.into}")
+
+
 def check_distinct_runs(run_dirs: tuple[str, ...], command: str) -> None:
     """At least one run directory, and none given twice: runs are aggregated as seeds, and the
     same run twice would count as two (``command`` names the CLI command in the message)."""
@@ -194,57 +219,38 @@ def check_eval(exp: EvalExperiment) -> None:
     check_distinct_runs(exp.run_dirs, "eval")
 
 
-def phase2_report(run_dir: Path, key, episodes: int) -> dict | None:
-    """RUN_DIR/phase2's figures, None without one; a phase-2 folder that cannot be loaded is
-    reported on stderr and skipped, so it never blocks the phase-1 evaluation."""
-    try:
-        loaded = jobs.load_run_phase2(run_dir)
-    except (ConfigError, CheckpointError) as err:
-        print(f"mjx-emp: {Path(run_dir) / store.PHASE2_SUBDIR} is unusable, its phase 2 is left out: {err}",
-              file=sys.stderr, flush=True)
-        return None
-    if loaded is None:
-        return None
-    from mjx_emp.run.evaluate import phase2_figures
-
-    return phase2_figures(*loaded, key, episodes)
-
-
 def evaluate(exp: EvalExperiment) -> dict:
-    """Evaluate each run's newest checkpoint, aggregate over runs (mean, sample std, standard
-    error), print tables and write JSON.
+    """Evaluate each run's newest checkpoint (:func:`mjx_emp.run.evaluate.evaluation_row`, the
+    evaluation `mjx-emp sweep` writes its rows with), aggregate over runs (mean, sample std,
+    standard error), print tables and write JSON: ``runs`` holds each run's row.
 
     Goal-space algorithms: the phase-1 figures per level and the agent's coverage; flat skill
     learners: coverage and posterior std. Both: the paper's phase-2 figure (mean minimum
     distance to goal) for runs that have a phase-2 directory (RUN_DIR/phase2).
     """
     check_eval(exp)
-    import jax
-
+    out = Path(exp.out or Path(exp.run_dirs[0]) / "eval.json")
     from mjx_emp.metrics import aggregate_phase2
+    from mjx_emp.run.evaluate import evaluation_row
+    from mjx_emp.run.provenance import command_line
 
     algorithms = {algorithm.name: algorithm
                   for algorithm in (algorithm_of(store.read_run_config(Path(d), "run_dirs")) for d in exp.run_dirs)}
     if len(algorithms) > 1:
         raise ConfigError(f"run_dirs: runs of one algorithm at a time (they are aggregated); got {sorted(algorithms)}")
     latent = next(iter(algorithms.values())).skills == LATENT_SKILLS
-    runs = []
+    rows = []
     for index, run_dir in enumerate(exp.run_dirs, 1):
         print(f"evaluating {run_dir} ({index} of {len(exp.run_dirs)}) ...", flush=True)
-        key = jax.random.key(exp.seed)
-        report = {"run_dir": run_dir, **(skill_run_figures if latent else goal_space_run_figures)(run_dir, key, exp)}
-        phase2 = phase2_report(Path(run_dir), key, exp.episodes)
-        if phase2 is not None:
-            report["phase2"] = phase2
-        runs.append(report)
-    report = {"runs": runs, **(aggregate_skill_runs if latent else aggregate_goal_space_runs)(runs)}
-    with_phase2 = [r["phase2"] for r in runs if "phase2" in r]
+        rows.append(evaluation_row(Path(run_dir), exp.seed, exp.episodes, command_line(["mjx-emp", *sys.argv[1:]])))
+    runs = [row["figures"] for row in rows]
+    report = {"runs": rows, **(aggregate_skill_runs if latent else aggregate_goal_space_runs)(runs)}
+    with_phase2 = [r["phase2"] for r in runs if r.get("phase2") is not None]
     if with_phase2:
         report["phase2"] = aggregate_phase2(with_phase2)
-    out = Path(exp.out or Path(exp.run_dirs[0]) / "eval.json")
     store.write_atomically(out, json.dumps(report, indent=1), chosen=bool(exp.out))
     print(f"{len(runs)} run(s)" + ("" if len(runs) == 1 else "; mean ± sample std (se: standard error) over runs"))
-    (print_skill_report if latent else print_goal_space_report)(report, runs)
+    (print_skill_report if latent else print_goal_space_report)(report, rows)
     if with_phase2:
         p2, first = report["phase2"], with_phase2[0]
         print(f"phase 2 ({len(with_phase2)} run(s), {first['episodes']} episodes each, region {first['region']}, "
@@ -263,22 +269,6 @@ def evaluate(exp: EvalExperiment) -> dict:
         print("phase 2: no run has a phase-2 directory (train one with `mjx-emp phase2 RUN_DIR`)")
     print(f"wrote {out}")
     return report
-
-
-def goal_space_run_figures(run_dir: str, key, exp: EvalExperiment) -> dict:
-    """One goal-space run's phase-1 figures (:func:`mjx_emp.run.evaluate.phase1_figures`)."""
-    from mjx_emp.run.evaluate import phase1_figures
-
-    trainer, _, state = jobs.load_run(Path(run_dir))
-    return phase1_figures(trainer, state, key, exp.episodes)
-
-
-def skill_run_figures(run_dir: str, key, exp: EvalExperiment) -> dict:
-    """One flat skill learner's figures (:func:`mjx_emp.run.evaluate.skill_figures`)."""
-    from mjx_emp.run.evaluate import skill_figures
-
-    agent, _, state = jobs.load_run(Path(run_dir))
-    return skill_figures(agent, state, key)
 
 
 def aggregate_goal_space_runs(runs: list[dict]) -> dict:
@@ -438,6 +428,10 @@ COMMANDS: dict[str, tuple[Any, Any, str]] = {
     "plot": (lambda: PlotExperiment, plot, "Draw a run's pictures into RUN_DIR/plots/, or compare several runs (seeds, methods)."),
     "render": (lambda: RenderExperiment, render, "Film a run's greedy skills (or its phase-2 policy) as an MP4 or a GIF."),
     "rollout": (lambda: RolloutExperiment, rollout, "Roll out a random-init k-level agent and print throughput."),
+    "report": (lambda: ReportExperiment, report, "Tables (n, mean ± std (se), IQM with its 95 % bootstrap interval, "
+               "probability of improvement) and seed-band figures of a spec's rows; --into writes a Markdown block."),
+    "sweep": (lambda: SweepExperiment, sweep, "Train, resume and evaluate every run of a spec (rows x seeds), each "
+              "run's evaluation row with its provenance appended to results/<spec>.jsonl."),
 }
 """Every command: (its type, built on demand; what runs it; its one-line help)."""
 

@@ -3,8 +3,8 @@ tables and seed-band figures, with the statistics the field reports for few-seed
 (Agarwal et al., 2021): the interquartile mean with a 95 % stratified-bootstrap interval and the
 probability of improvement, both computed by ``rliable``.
 
-Everything here is pure except the readers and writers at the end (``read_rows``,
-``read_block``, ``write_block``, ``seed_band_figure``). ``rliable`` and ``matplotlib`` are
+Rows are read with :func:`mjx_emp.run.rows.read_rows`. Everything here is pure except the
+block and figure writers at the end (``read_block``, ``write_block``, ``seed_band_figure``). ``rliable`` and ``matplotlib`` are
 imported inside the functions that use them, so importing this module stays cheap and never
 starts JAX.
 """
@@ -26,9 +26,6 @@ import numpy as np
 
 from mjx_emp import tables
 from mjx_emp.errors import ConfigError
-
-ROW_SCHEMA = 1
-"""The version of the row format this module reads (a row's ``schema`` field)."""
 
 DEFAULT_REPS = 2000
 """Bootstrap resamples per interval: a few tenths of a second per metric, and an interval
@@ -499,50 +496,65 @@ def write_block(markdown_file: Path | str, name: str, text: str) -> bool:
     return True
 
 
-def row_key(row: dict) -> tuple[str, str, str]:
-    """What makes a row one result: (spec, row, seed); a later row with the same key replaces
-    an earlier one."""
-    return str(row.get("spec")), str(row.get("row")), str(row.get("seed"))
+# --------------------------------------------------------------------------- a spec's report
+
+DEFAULT_METRICS = ("top_volume", "top_success", "coverage_cells", "phase2_min_distance", "phase2_cut_short")
+"""What a report shows when neither the command nor the spec names metrics: those of these the rows hold."""
 
 
-def parse_row(line: str, path: Path, number: int) -> dict:
-    """One line of a rows file as a row; a line that is not a JSON object of this schema is a
-    ConfigError naming the file and line."""
-    try:
-        row = json.loads(line)
-    except json.JSONDecodeError as err:
-        raise ConfigError(f"rows: {path} line {number} is not JSON ({err.msg})") from None
-    if not isinstance(row, dict):
-        raise ConfigError(f"rows: {path} line {number} is not a JSON object")
-    if row.get("schema", ROW_SCHEMA) != ROW_SCHEMA:
-        raise ConfigError(f"rows: {path} line {number} has schema {row.get('schema')!r}; "
-                          f"this version reads schema {ROW_SCHEMA}")
-    return row
+def held_metrics(rows: Sequence[dict], names: Sequence[str] = DEFAULT_METRICS) -> list[str]:
+    """The metrics of ``names`` that at least one row holds."""
+    return [name for name in names if metric_values(rows, name)]
 
 
-def read_rows(path: Path | str) -> list[dict]:
-    """The rows of a ``.jsonl`` rows file, one per (spec, row, seed): the newest line wins, at
-    the place where the key first appeared. An unparseable last line (a write cut short) is
-    skipped; an unparseable line anywhere else is a ConfigError naming the file and line."""
-    path = Path(path)
-    numbered = [(i, line) for i, line in enumerate(read_text(path, "rows").splitlines(), start=1) if line.strip()]
-    rows: dict[tuple[str, str, str], dict] = {}
-    for position, (number, line) in enumerate(numbered):
-        try:
-            row = parse_row(line, path, number)
-        except ConfigError:
-            if position == len(numbered) - 1 and is_torn(line):
-                break
-            raise
-        rows[row_key(row)] = row
-    return list(rows.values())
+def spec_rows(spec: Any, results: Path) -> list[dict]:
+    """The stored rows of ``spec`` in the spec's order of rows, then seeds (rows of rows or seeds
+    the spec no longer names are left out)."""
+    from mjx_emp.run.rows import read_rows
+
+    stored = {(row.get("row"), row.get("seed")): row for row in read_rows(results) if row.get("spec") == spec.name}
+    return [stored[(row.name, seed)] for row in spec.rows for seed in row.seeds if (row.name, seed) in stored]
 
 
-def is_torn(line: str) -> bool:
-    """Whether a line fails to parse as JSON at all, as a write cut short leaves it (a complete
-    line of the wrong shape is an error even at the end)."""
-    try:
-        json.loads(line)
-    except json.JSONDecodeError:
-        return True
-    return False
+def reproduce_line(spec_path: str, options: str = "") -> str:
+    """The commands that rebuild a report: the sweep, then the report itself."""
+    return f"Reproduce: `mjx-emp sweep {spec_path}`, then `mjx-emp report {spec_path}{options}`."
+
+
+def report_spec(spec_path: str, results: str = "", metrics: Sequence[str] = (), baseline: str = "",
+                figure: str = "", curve: str = "top_volume", into: str = "", block: str = "",
+                reps: int = DEFAULT_REPS) -> str:
+    """A spec's report as Markdown: its stored rows' table (:func:`markdown_table`) and the command
+    that reproduces it; with ``figure``, a seed-band PNG of ``curve`` too (linked under the
+    table); with ``into``, the text replaces block ``block`` (default: the spec's name) of that
+    Markdown file. The spec's ``[report]`` table may name ``metrics`` and ``baseline``."""
+    from mjx_emp.run.rows import RESULTS_DIR
+    from mjx_emp.run.sweep import load_spec
+
+    if reps < 1:
+        raise ConfigError(f"reps: must be >= 1; got {reps}")
+    spec = load_spec(spec_path)
+    results_path = Path(results or Path(RESULTS_DIR) / f"{spec.name}.jsonl")
+    rows = spec_rows(spec, results_path)
+    if not rows:
+        raise ConfigError(f"results: {results_path} holds no row of spec {spec.name!r}; run "
+                          f"`mjx-emp sweep {spec_path}` first")
+    chosen = list(metrics or spec.report.get("metrics", ()) or held_metrics(rows))
+    baseline = baseline or spec.report.get("baseline", "")
+    table = markdown_table(rows, chosen, baseline=baseline or None, reps=reps)
+    options = "".join(f" --{flag} {value}" for flag, value in (("figure", figure), ("curve", curve if figure else ""),
+                                                                ("into", into), ("block", block)) if value)
+    missing = sorted({(row.name, seed) for row in spec.rows for seed in row.seeds}
+                     - {(row["row"], row["seed"]) for row in rows})
+    parts = [table]
+    if missing:
+        parts.append(f"Not yet in {results_path}: " + ", ".join(f"{name} seed {seed}" for name, seed in missing) + ".")
+    if figure:
+        chart = seed_band_figure(rows, curve, figure, title=f"{spec.name}: {curve_heading(curve)}")
+        link = os.path.relpath(chart.path, Path(into).parent) if into else str(chart.path)
+        parts.append(f"![{spec.name}: {curve_heading(curve)}]({link})")
+    parts.append(reproduce_line(spec_path, options))
+    text = "\n\n".join(parts)
+    if into:
+        write_block(into, block or spec.name, text)
+    return text

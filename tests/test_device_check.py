@@ -43,7 +43,8 @@ def test_the_device_session_dry_run_runs_every_step_and_writes_json(tmp_path):
     assert "point-mass-k1.skills/checkpoints/2/state" in names
     lines = (out / "point-mass-k1.phase2.jsonl").read_text().splitlines()  # phase 2 on the row's skills
     assert [json.loads(line)["epoch"] for line in lines] == [1]
-    (run,) = json.loads((out / "point-mass-k1.eval.json").read_text())["runs"]
+    (row,) = json.loads((out / "point-mass-k1.eval.json").read_text())["runs"]
+    run = row["figures"]
     assert run["epoch"] == 2 and run["phase2"]["epoch"] == 1 and run["phase2"]["episodes"] == 8
 
 
@@ -66,7 +67,7 @@ def test_the_device_session_trains_a_rows_seeds_in_one_program_and_returns_each_
             lines = tar.extractfile(f"{run}.skills/metrics.jsonl").read().decode().splitlines()
         assert [json.loads(line)["epoch"] for line in lines] == [1, 2]
         (row,) = json.loads((out / f"{run}.eval.json").read_text())["runs"]  # phase 2 and eval per seed
-        assert row["phase2"]["episodes"] == 8
+        assert row["figures"]["phase2"]["episodes"] == 8
         assert len((out / f"{run}.phase2.jsonl").read_text().splitlines()) == 1
 
 

@@ -90,4 +90,4 @@ def test_flat_phase2_trains_resumes_bitwise_and_eval_reports_it(tmp_path):
     result = run_cli("eval", str(run_dir), "--episodes", "16")  # the CLI finds the flat run's phase 2 beside it
     assert result.returncode == 0, result.stderr
     report = json.loads((run_dir / "eval.json").read_text())
-    assert report["runs"][0]["phase2"]["episodes"] >= 16 and "phase 2" in result.stdout
+    assert report["runs"][0]["figures"]["phase2"]["episodes"] >= 16 and "phase 2" in result.stdout

@@ -8,13 +8,13 @@ from pathlib import Path
 import pytest
 
 from mjx_emp.errors import ConfigError
+from mjx_emp.run.rows import read_rows
 from mjx_emp.report import (
     METRICS,
     markdown_table,
     metric_values,
     probability_of_improvement,
     read_block,
-    read_rows,
     seed_band_figure,
     summary,
     write_block,

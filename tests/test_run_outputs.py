@@ -169,17 +169,17 @@ def test_eval_reports_every_level_and_phase2_and_aggregates_runs_as_seeds(traine
     result = run_cli("eval", str(trained_run), str(copy), "--episodes", "16", "--out", str(out))
     assert result.returncode == 0, result.stderr
     report = json.loads(out.read_text())
-    assert len(report["runs"]) == 2 and report["runs"][0]["epoch"] == 1
+    assert len(report["runs"]) == 2 and report["runs"][0]["figures"]["epoch"] == 1
     (level,) = report["levels"]  # SMALL is a one-level agent
     assert level["volume"]["count"] == 2 and level["volume"]["stderr"] == 0.0  # the same run copied
     assert 0.0 <= level["success"]["mean"] <= 1.0 and level["final_distance"]["mean"] >= 0.0
-    assert report["runs"][0]["levels"][0]["episodes"] == 16
+    assert report["runs"][0]["figures"]["levels"][0]["episodes"] == 16
     assert "| 0 |" in result.stdout
-    first = report["runs"][0]
+    first = report["runs"][0]["figures"]
     assert first["coverage_cells"] >= 1 and report["coverage_cells"]["count"] == 2
     assert first["volume_x_success"] == pytest.approx(first["levels"][0]["volume"] * first["levels"][0]["success"])
     assert "coverage (48 greedy top-level skills" in result.stdout
-    phase2 = report["runs"][0]["phase2"]
+    phase2 = report["runs"][0]["figures"]["phase2"]
     assert phase2["episodes"] == 16 and phase2["eps"] == 0.6 and phase2["min_distance"] >= 0.0
     assert phase2["cut_short"] == 0.0 and report["phase2"]["cut_short"]["count"] == 2  # a point mass never resets
     assert report["phase2"]["min_distance"]["count"] == 2 and report["phase2"]["min_distance"]["stderr"] == 0.0

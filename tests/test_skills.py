@@ -179,7 +179,7 @@ def test_eval_reports_coverage_and_posterior_std(tmp_path):
     result = run_cli("eval", str(tmp_path / "run"))
     assert result.returncode == 0, result.stderr
     report = json.loads((tmp_path / "run" / "eval.json").read_text())
-    assert 1 <= report["runs"][0]["coverage_cells"] <= 48 * (cfg.n + 1)
+    assert 1 <= report["runs"][0]["figures"]["coverage_cells"] <= 48 * (cfg.n + 1)
     assert 0 < report["posterior_std"]["mean"] < math.exp(2.0)
     assert "coverage" in result.stdout
 

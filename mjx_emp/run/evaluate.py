@@ -19,12 +19,12 @@ import numpy as np
 from mjx_emp.algos.registry import GOAL_SPACES, algorithm_of
 from mjx_emp.errors import CheckpointError, ConfigError
 from mjx_emp.metrics import coverage_cells
+from mjx_emp.phase2.config import Phase2Config
 from mjx_emp.rollout.hierarchy import jit_init_rollout, jit_rollout
 from mjx_emp.run import jobs, store
 from mjx_emp.run.provenance import provenance, read_run_record
+from mjx_emp.run.rows import ROW_SCHEMA
 
-ROW_SCHEMA = 1
-"""The version of an evaluation row's layout (:func:`evaluation_row`)."""
 
 COVERAGE_SKILLS = 48
 """Skills per coverage count, as in METRA's Ant figures."""
@@ -195,7 +195,7 @@ def evaluation_row(run_dir: Path, seed: int = 0, episodes: int = 400, command: s
         "schema": ROW_SCHEMA, "spec": spec, "row": row, "seed": int(cfg.seed), "run_dir": str(run_dir),
         "algorithm": algorithm_of(cfg).name, "env": cfg.env, "k": getattr(cfg, "k", None),
         "preset": trained.get("preset"), "overrides": trained.get("overrides"),
-        "phase2_preset": _phase2_preset(run_dir),
+        "phase2_preset": _phase2_preset(run_dir), "phase2_config": _phase2_config(run_dir),
         "figures": figures, "curves": run_curves(run_dir),
         "train": {**trained, "env_steps": figures["env_steps"], "wall_s": training_seconds(run_dir),
                   "config": store.config_json(cfg)},
@@ -207,6 +207,14 @@ def _phase2_preset(run_dir: Path) -> str | None:
     """The phase-2 preset RUN_DIR/phase2 was started from, where its provenance says."""
     phase2_dir = run_dir / store.PHASE2_SUBDIR
     return read_run_record(phase2_dir).get("preset") if (phase2_dir / store.CONFIG_FILE).exists() else None
+
+
+def _phase2_config(run_dir: Path) -> dict | None:
+    """RUN_DIR/phase2's config as its config.json holds it, None without a phase 2."""
+    phase2_dir = run_dir / store.PHASE2_SUBDIR
+    if not (phase2_dir / store.CONFIG_FILE).exists():
+        return None
+    return dataclasses.asdict(store.read_run_config(phase2_dir, "run_dir", Phase2Config))
 
 
 def row_figures(row: dict) -> dict:

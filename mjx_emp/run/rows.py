@@ -19,9 +19,14 @@ RESULTS_DIR = "results"
 """Where a spec's rows go by default: results/<spec name>.jsonl."""
 
 
-def row_key(row: dict[str, Any]) -> tuple:
-    """What identifies a row in a store: its spec, its row name and its seed."""
-    return row.get("spec"), row.get("row"), row.get("seed")
+ROW_SCHEMA = 1
+"""The version of an evaluation row's layout (:func:`mjx_emp.run.evaluate.evaluation_row`)."""
+
+
+def row_key(row: dict[str, Any]) -> tuple[str, str, str]:
+    """What makes a row one result: (spec, row, seed); a later row with the same key replaces an
+    earlier one."""
+    return str(row.get("spec")), str(row.get("row")), str(row.get("seed"))
 
 
 def append_row(path: Path, row: dict[str, Any]) -> None:
@@ -30,7 +35,7 @@ def append_row(path: Path, row: dict[str, Any]) -> None:
     path = Path(path)
     with writing(path, chosen=True):
         path.parent.mkdir(parents=True, exist_ok=True)
-        line = json.dumps(row, allow_nan=True) + "\n"
+        line = json.dumps(row) + "\n"
         with open(path, "ab+") as f:
             f.seek(0, os.SEEK_END)
             if f.tell() > 0:
@@ -42,30 +47,51 @@ def append_row(path: Path, row: dict[str, Any]) -> None:
             os.fsync(f.fileno())
 
 
-def read_rows(path: Path) -> list[dict[str, Any]]:
-    """The rows of a store, the newest of each :func:`row_key` only, in the order those were
-    written. A torn last line is skipped; a bad line elsewhere raises
+def parse_row(line: str, path: Path, number: int) -> dict[str, Any]:
+    """One line of a rows file as a row; a line that is not a JSON object of this schema is a
     ConfigError naming the file and line."""
+    try:
+        row = json.loads(line)
+    except json.JSONDecodeError as err:
+        raise ConfigError(f"rows: {path} line {number} is not JSON ({err.msg})") from None
+    if not isinstance(row, dict):
+        raise ConfigError(f"rows: {path} line {number} is not a JSON object")
+    if row.get("schema", ROW_SCHEMA) != ROW_SCHEMA:
+        raise ConfigError(f"rows: {path} line {number} has schema {row.get('schema')!r}; "
+                          f"this version reads schema {ROW_SCHEMA}")
+    return row
+
+
+def is_torn(line: str) -> bool:
+    """Whether a line fails to parse as JSON at all, as a write cut short leaves it (a complete
+    line of the wrong shape is an error even at the end)."""
+    try:
+        json.loads(line)
+    except json.JSONDecodeError:
+        return True
+    return False
+
+
+def read_rows(path: Path | str) -> list[dict[str, Any]]:
+    """The rows of a store, one per :func:`row_key`: the newest line wins, at the place where the
+    key first appeared (so a table's order stays put as runs are re-evaluated). A missing file
+    holds no rows; an unparseable last line (a write cut short) is skipped; a bad line anywhere
+    else is a ConfigError naming the file and line."""
     path = Path(path)
     try:
-        lines = path.read_text().split("\n")
+        text = path.read_text()
     except FileNotFoundError:
         return []
-    while lines and not lines[-1].strip():
-        lines.pop()
-    newest: dict[tuple, dict] = {}
-    for number, line in enumerate(lines, 1):
-        if not line.strip():
-            continue
+    except (OSError, UnicodeDecodeError) as err:
+        raise ConfigError(f"rows: cannot read {path} ({err})") from None
+    numbered = [(i, line) for i, line in enumerate(text.splitlines(), start=1) if line.strip()]
+    rows: dict[tuple[str, str, str], dict] = {}
+    for position, (number, line) in enumerate(numbered):
         try:
-            row = json.loads(line)
-            if not isinstance(row, dict):
-                raise ValueError("not a JSON object")
-        except ValueError as err:
-            if number == len(lines):
-                break  # a writer killed mid-line: the row was never complete
-            raise ConfigError(f"rows: {path} line {number} is not a row ({err})") from None
-        key = row_key(row)
-        newest.pop(key, None)
-        newest[key] = row
-    return list(newest.values())
+            row = parse_row(line, path, number)
+        except ConfigError:
+            if position == len(numbered) - 1 and is_torn(line):
+                break
+            raise
+        rows[row_key(row)] = row
+    return list(rows.values())

@@ -49,7 +49,7 @@ from mjx_emp.phase2.presets import PHASE2_PRESETS, phase2_preset_for
 from mjx_emp.run import store
 from mjx_emp.run.rows import RESULTS_DIR, append_row, read_rows
 
-SPEC_KEYS = ("name", "eval_seed", "episodes", "runs", "slurm", "row")
+SPEC_KEYS = ("name", "eval_seed", "episodes", "runs", "slurm", "report", "row")
 ROW_KEYS = ("name", "preset", "seeds", "overrides", "max_env_steps", "phase2", "phase2_overrides", "episodes",
             "group_seeds")
 AUTO = "auto"
@@ -84,6 +84,8 @@ class Spec:
     rows: tuple[Row, ...]
     runs: str
     slurm: dict[str, Any]
+    report: dict[str, Any]
+    """``mjx-emp report``'s defaults for this spec: ``metrics`` (a list) and ``baseline`` (a row name)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -218,6 +220,9 @@ def load_spec(path: str | Path) -> Spec:
     slurm = raw.get("slurm", {})
     if not isinstance(slurm, dict):
         raise ConfigError(f"spec: slurm: must be a table of submitit parameters; got {slurm!r}")
+    report = raw.get("report", {})
+    if not isinstance(report, dict) or sorted(set(report) - {"metrics", "baseline"}):
+        raise ConfigError(f"spec: report: a table of metrics (a list) and baseline (a row name); got {report!r}")
     rows = raw.get("row")
     if not isinstance(rows, list) or not rows:
         raise ConfigError("spec: row: give at least one [[row]] table")
@@ -231,7 +236,10 @@ def load_spec(path: str | Path) -> Spec:
         if twin is not None:
             raise ConfigError(f"row {row.name!r}: overrides: the same runs as row {twin.name!r} (a duplicate row)")
         seen[row.name] = row
-    return Spec(name, str(path), eval_seed, tuple(checked), runs, slurm)
+    names = [row.name for row in checked]
+    if "baseline" in report and report["baseline"] not in names:
+        raise ConfigError(f"spec: report.baseline: {report['baseline']!r} is not a row; rows: {', '.join(names)}")
+    return Spec(name, str(path), eval_seed, tuple(checked), runs, slurm, report)
 
 
 # ---- what is done -----------------------------------------------------------------------------
@@ -274,10 +282,13 @@ def row_is_current(stored: dict | None, row: Row, seed: int, eval_seed: int) -> 
         return False
     from mjx_emp.run.store import config_json
 
-    phase2 = None if row.phase2 is None else dataclasses.asdict(row.phase2)
+    def task(phase2: dict | None) -> dict | None:  # the phase-1 epoch it ran on is the run's, not the spec's
+        return None if phase2 is None else {**phase2, "phase1_epoch": None}
+
+    phase2 = None if row.phase2 is None else json.loads(json.dumps(dataclasses.asdict(row.phase2)))
     train, evaluation = stored.get("train", {}), stored.get("evaluation", {})
     return (train.get("config") == json.loads(json.dumps(config_json(seed_config(row, seed))))
-            and stored.get("phase2_config") == json.loads(json.dumps(phase2))
+            and task(stored.get("phase2_config")) == task(phase2)
             and evaluation.get("seed") == eval_seed and evaluation.get("episodes") == row.episodes)
 
 
@@ -387,7 +398,6 @@ def run_job(job: Job) -> list[dict]:
             print(f"evaluating {run_dir} ...", flush=True)
             row = evaluation_row(Path(run_dir), job.eval_seed, job.row.episodes, job.command, job.spec,
                                  job.row.name)
-            row["phase2_config"] = None if job.row.phase2 is None else dataclasses.asdict(job.row.phase2)
             row["evaluation"]["did"] = done
             rows.append(json.loads(json.dumps(row)))
         return rows

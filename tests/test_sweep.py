@@ -1,0 +1,158 @@
+"""`mjx-emp sweep` and `mjx-emp report` on the committed smoke spec: a sweep completes, a second
+call trains nothing, a sweep killed with SIGKILL and called again (through submitit's local
+executor) ends with the rows of one never stopped, `mjx-emp eval` of a sweep's run gives its
+row again, the report prints IQM intervals, and bad specs are refused before anything trains."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+
+from mjx_emp.errors import ConfigError
+from mjx_emp.run.evaluate import row_figures
+from mjx_emp.run.rows import read_rows
+from mjx_emp.run.sweep import load_spec
+from tests.tiny import mjx_emp, run_cli
+
+ROOT = Path(__file__).resolve().parents[1]
+SMOKE = ROOT / "experiments" / "smoke-point-mass.toml"
+
+
+def sweep(tmp: Path, *extra: str) -> subprocess.CompletedProcess:
+    return run_cli("sweep", str(SMOKE), "--runs", str(tmp / "runs"), "--results", str(tmp / "rows.jsonl"), *extra)
+
+
+def comparable(row: dict) -> dict:
+    """A row less what differs between two sweeps of the same spec by design: provenance (times,
+    commands) and where its runs live."""
+    figures = row_figures(row)
+    figures.pop("run_dir")
+    return figures
+
+
+@pytest.fixture(scope="module")
+def swept(tmp_path_factory) -> Path:
+    """The smoke spec swept once, uninterrupted."""
+    tmp = tmp_path_factory.mktemp("swept")
+    result = sweep(tmp)
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert "4 row(s) written this call" in result.stdout
+    return tmp
+
+
+def test_a_sweep_writes_one_row_per_run_with_its_provenance(swept):
+    rows = read_rows(swept / "rows.jsonl")
+    spec = load_spec(SMOKE)
+    assert [(r["row"], r["seed"]) for r in rows] == [(row.name, seed) for row in spec.rows for seed in row.seeds]
+    for row in rows:
+        assert row["spec"] == "smoke-point-mass" and row["schema"] == 1
+        assert row["train"]["preset"] in ("point-mass-k1", "point-mass-k2")
+        assert row["train"]["overrides"]["epochs"] in (2, 3) and row["train"]["config"]["seed"] == row["seed"]
+        assert len(row["train"]["commit"]) == 40 and isinstance(row["train"]["dirty"], bool)
+        assert row["train"]["versions"]["jax"] == row["evaluation"]["versions"]["jax"] != "unknown"
+        assert row["train"]["machine"]["backend"] == "cpu" and row["train"]["wall_s"] > 0
+        assert "mjx-emp sweep" in row["train"]["command"] and row["evaluation"]["seed"] == 0
+        figures = row["figures"]
+        assert figures["env_steps"] > 0 and figures["top_volume"] > 0 and 0 <= figures["top_success"] <= 1
+        assert figures["phase2"]["episodes"] >= 16 and {"aimed", "random"} <= set(figures["phase2"])
+        assert len(row["curves"]["env_steps"]) == figures["epoch"] == row["train"]["config"]["epochs"]
+        assert len(row["curves"]["phase2_min_distance"]) == 2
+    seeds = [row["figures"] for row in rows if row["row"] == "he-k1"]
+    assert seeds[0] != seeds[1], "two seeds gave the same figures"
+
+
+def test_a_second_call_trains_and_evaluates_nothing(swept):
+    metrics = sorted((swept / "runs").rglob("metrics.jsonl"))
+    before = [(p, p.stat().st_mtime_ns) for p in metrics]
+    lines = (swept / "rows.jsonl").read_text().count("\n")
+    result = sweep(swept)
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert "4 evaluated already, 0 to do" in result.stdout and "0 row(s) written" in result.stdout
+    assert [(p, p.stat().st_mtime_ns) for p in metrics] == before
+    assert (swept / "rows.jsonl").read_text().count("\n") == lines
+
+
+def test_eval_of_a_sweep_run_gives_its_row(swept, tmp_path):
+    (stored,) = [r for r in read_rows(swept / "rows.jsonl") if (r["row"], r["seed"]) == ("he-k2", 1)]
+    out = tmp_path / "eval.json"
+    result = run_cli("eval", stored["run_dir"], "--episodes", "16", "--seed", "0", "--out", str(out))
+    assert result.returncode == 0, result.stderr[-2000:]
+    (evaluated,) = json.loads(out.read_text())["runs"]
+    assert {**row_figures(evaluated), "spec": stored["spec"], "row": stored["row"]} == row_figures(stored)
+    assert evaluated["train"]["config"] == stored["train"]["config"]
+
+
+def test_report_prints_iqm_intervals_and_writes_a_block(swept, tmp_path):
+    page = tmp_path / "page.md"
+    page.write_text("# results\n<!-- report:smoke -->\nold\n<!-- /report:smoke -->\nafter\n")
+    result = run_cli("report", str(SMOKE), "--results", str(swept / "rows.jsonl"), "--reps", "200",
+                     "--into", str(page), "--block", "smoke")
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert "IQM [95% CI]" in result.stdout and "P(phase-2 min distance better than he-k1)" in result.stdout
+    he_k2 = next(line for line in result.stdout.splitlines() if line.startswith("| he-k2 |"))
+    assert he_k2.count("[") >= 4 and "| 2 |" in he_k2  # an interval per metric, n = 2 seeds
+    text = page.read_text()
+    assert "old" not in text and text.endswith("<!-- /report:smoke -->\nafter\n") and "mjx-emp sweep" in text
+
+
+def test_a_killed_sweep_called_again_through_submitit_ends_with_the_same_rows(swept, tmp_path):
+    """SIGKILL the whole sweep (its worker too) while the first row's seeds train, then call it
+    again with submitit's local executor: the first row resumes as one program, the second
+    trains afresh, and every row equals the uninterrupted sweep's in every non-timing field."""
+    process = subprocess.Popen(mjx_emp("sweep", str(SMOKE), "--runs", str(tmp_path / "runs"), "--results",
+                                       str(tmp_path / "rows.jsonl")),
+                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    first_epoch = tmp_path / "runs" / "smoke-point-mass" / "he-k1-s0" / "metrics.jsonl"
+    deadline = time.monotonic() + 400
+    while not (first_epoch.exists() and first_epoch.read_text().count("\n") >= 1):
+        assert process.poll() is None and time.monotonic() < deadline, "the sweep ended before its first epoch"
+        time.sleep(0.02)
+    os.killpg(process.pid, signal.SIGKILL)
+    process.wait()
+    assert not (tmp_path / "rows.jsonl").exists() or not read_rows(tmp_path / "rows.jsonl")
+    result = sweep(tmp_path, "--executor", "submitit-local")
+    assert result.returncode == 0, result.stderr[-3000:]
+    rows = read_rows(tmp_path / "rows.jsonl")
+    assert rows[0]["evaluation"]["did"][0].startswith("resumed seeds 0, 1 as one program")
+    assert [comparable(r) for r in rows] == [comparable(r) for r in read_rows(swept / "rows.jsonl")]
+
+
+SPEC_HEAD = 'name = "bad"\n'
+GOOD_ROW = '[[row]]\nname = "a"\npreset = "point-mass-k1"\nseeds = [0]\n'
+
+
+@pytest.mark.parametrize("body, named", [
+    ('[[row]]\nname = "a"\npreset = "point-mass-k9"\nseeds = [0]\n', ["row 'a'", "preset", "point-mass-k1"]),
+    (GOOD_ROW + 'overrides = { epoch = 3 }\n', ["row 'a'", "overrides.epoch", "not a field"]),
+    (GOOD_ROW + 'colour = "red"\n', ["row 'a'", "colour", "not a row field"]),
+    (GOOD_ROW + 'overrides = { epochs = "three" }\n', ["row 'a'", "overrides.epochs", "must be int"]),
+    (GOOD_ROW + 'overrides = { epochs = 0 }\n', ["row 'a'", "epochs"]),
+    ('[[row]]\nname = "a"\npreset = "point-mass-k1"\nseeds = [0.5]\n', ["row 'a'", "seeds", "integer"]),
+    (GOOD_ROW + GOOD_ROW, ["row 'a'", "name", "given twice"]),
+    (GOOD_ROW + GOOD_ROW.replace('"a"', '"b"'), ["row 'b'", "duplicate row", "row 'a'"]),
+    ('[[row]]\nname = "a"\npreset = "point-mass-k1"\nseeds = []\n', ["row 'a'", "seeds", "non-empty"]),
+    (GOOD_ROW + 'phase2 = "reach-the-moon"\n', ["row 'a'", "phase2", "not a phase-2 preset"]),
+    (GOOD_ROW + 'phase2 = "auto"\nphase2_overrides = { eps = -1.0 }\n', ["row 'a'", "phase2_overrides", "eps"]),
+])
+def test_a_bad_spec_is_refused_naming_the_row_and_the_field(tmp_path, body, named):
+    path = tmp_path / "bad.toml"
+    path.write_text(SPEC_HEAD + body)
+    with pytest.raises(ConfigError) as refused:
+        load_spec(path)
+    for part in named:
+        assert part in str(refused.value), (part, str(refused.value))
+
+
+def test_the_cli_refuses_a_bad_spec_with_exit_2_before_anything_trains(tmp_path):
+    path = tmp_path / "bad.toml"
+    path.write_text(SPEC_HEAD + GOOD_ROW + 'overrides = { epochs = "three" }\n')
+    result = run_cli("sweep", str(path), "--runs", str(tmp_path / "runs"))
+    assert result.returncode == 2
+    assert result.stderr.strip().splitlines()[-1].startswith("mjx-emp: invalid configuration: row 'a': overrides.epochs")
+    assert not (tmp_path / "runs").exists()
