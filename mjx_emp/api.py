@@ -120,3 +120,19 @@ def export(run_dir: str | Path, out: str | Path, epoch: int | None = None) -> Pa
     small run directory that :func:`load`, phase 2, eval, plot and render read; returns ``out``."""
     written, _ = jobs.export_skills(ExportExperiment(str(run_dir), str(out), -1 if epoch is None else epoch))
     return written
+
+
+def evaluate(run_dir: str | Path, seed: int = 0, episodes: int = 400) -> dict:
+    """A run's evaluation row, as `mjx-emp eval` and `mjx-emp sweep` write it (figures of phase 1
+    and phase 2 from the key ``jax.random.key(seed)``, curves, provenance; docs/sweeps.md)."""
+    from mjx_emp.run.evaluate import evaluation_row
+
+    return evaluation_row(Path(run_dir), seed, episodes)
+
+
+def sweep(spec: str | Path, runs: str | Path = "", results: str | Path = "", workers: int = 1) -> list[dict]:
+    """Run a sweep spec as `mjx-emp sweep` does (train, resume and evaluate what is not done);
+    returns the rows this call appended to the spec's results file."""
+    from mjx_emp.run.sweep import sweep as run_sweep
+
+    return run_sweep(str(spec), str(runs), str(results), workers)

@@ -443,7 +443,18 @@ def parse(argv: list[str]) -> tuple[Any, Any]:
         for name, (make_type, _, help_text) in COMMANDS.items()
     )]
     exp = tyro.cli(choices, args=argv, prog="mjx-emp")  # exits on a missing or unknown command
-    return COMMANDS[argv[0]][1], exp
+    run = COMMANDS[argv[0]][1]
+    if argv[0] in ("train", "phase2"):  # the preset a new run is made from, kept beside it with its overrides
+        run = functools.partial(run, record=new_run_record(argv[1], exp.config, argv))
+    return run, exp
+
+
+def new_run_record(preset: str, cfg: Any, argv: list[str]) -> dict:
+    """What a new run directory keeps of how it was asked for (:mod:`mjx_emp.run.provenance`)."""
+    from mjx_emp.run.provenance import command_line, overrides_of, run_record
+
+    base = PHASE2_PRESETS[preset][2] if argv[0] == "phase2" else all_presets()[preset][1]
+    return run_record(preset, overrides_of(base, cfg), command_line(["mjx-emp", *argv]))
 
 
 NO_COMPILE_CACHE = "--no-compile-cache"

@@ -45,7 +45,7 @@ def test_the_package_exports_the_api_without_loading_jax():
     code = "import sys, mjx_emp; assert 'jax' not in sys.modules; print(sorted(mjx_emp.__all__))"
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
-    assert done.stdout.strip() == "['Run', 'config', 'load', 'presets', 'train']"
+    assert done.stdout.strip() == "['Run', 'config', 'evaluate', 'load', 'presets', 'sweep', 'train']"
     with pytest.raises(AttributeError, match="has no attribute 'nothing'"):
         mjx_emp.nothing  # noqa: B018
 

@@ -110,6 +110,15 @@ def phase2_run(trained_run):
     return trained_run / "phase2"
 
 
+def test_train_and_phase2_keep_the_preset_and_overrides_they_were_given(trained_run, phase2_run):
+    record = json.loads((trained_run / "provenance.json").read_text())
+    assert record["preset"] == "point-mass-k1" and record["overrides"]["num_envs"] == 8
+    assert record["overrides"]["epochs"] == 1 and "seed" not in record["overrides"]  # only what differs
+    assert record["command"].startswith("mjx-emp train point-mass-k1 ") and len(record["versions"]) == 8
+    task = json.loads((phase2_run / "provenance.json").read_text())
+    assert task["preset"] == "reach-point-mass" and task["command"].startswith("mjx-emp phase2 reach-point-mass ")
+
+
 def test_phase2_trains_on_the_runs_skills_and_resumes_exactly(trained_run, phase2_run):
     config = json.loads((phase2_run / "config.json").read_text())
     assert config["phase1_epoch"] == 1 and config["region"] == [2.4, 2.4]  # the run's own preset, point-mass-k1

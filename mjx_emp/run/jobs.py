@@ -31,6 +31,7 @@ from mjx_emp.commands import (
 from mjx_emp.errors import ConfigError, RenderError
 from mjx_emp.phase2.config import Phase2Config
 from mjx_emp.run.loop import train_to_the_end
+from mjx_emp.run.provenance import write_run_record
 from mjx_emp.run.store import (
     CONFIG_FILE,
     METRICS_FILE,
@@ -117,12 +118,14 @@ def split_for_devices(cfg, num_devices: int):
     return dataclasses.replace(cfg, shards=num_devices) if num_devices > 1 else cfg
 
 
-def train(exp: TrainExperiment, on_epoch: Callable[[dict], None] | None = None, film: Film | None = None):
+def train(exp: TrainExperiment, on_epoch: Callable[[dict], None] | None = None, film: Film | None = None,
+          record: dict | None = None):
     """Train a new run of the config's algorithm (with ``exp.seeds``, one run per seed under one
     vmap: :mod:`mjx_emp.run.seeds`; split over devices per ``exp.num_devices``: :mod:`mjx_emp.run.devices`);
     returns the final state. ``on_epoch`` (one run, not a seed group) sees each epoch's metrics;
-    ``film`` makes the video the trackers get at the end (no video without it)."""
-    from mjx_emp.run.hosts import join_hosts, wait_for_all
+    ``film`` makes the video the trackers get at the end (no video without it); ``record`` (how the
+    run was asked for, :func:`mjx_emp.run.provenance.run_record`) is kept in each run directory."""
+    from mjx_emp.run.hosts import is_lead, join_hosts, wait_for_all
 
     check_train(exp)
     several = join_hosts(exp.coordinator_address, exp.num_processes, exp.process_id)
@@ -133,7 +136,7 @@ def train(exp: TrainExperiment, on_epoch: Callable[[dict], None] | None = None, 
             raise ConfigError("seeds: a progress callback follows one run; train the seeds one by one")
         from mjx_emp.run.seeds import train_seeds
 
-        return train_seeds(exp)
+        return train_seeds(exp, record)
     algorithm = algorithm_of(exp.config)
     cfg = split_for_devices(exp.config, exp.num_devices)
     if cfg is not exp.config:
@@ -146,6 +149,8 @@ def train(exp: TrainExperiment, on_epoch: Callable[[dict], None] | None = None, 
     wait_for_all("mjx-emp: every process checked the run directory")  # before the lead writes into it
     print(f"run directory: {run_dir}", flush=True)
     with run_lock(run_dir, "run_dir"):
+        if record is not None and is_lead():
+            write_run_record(run_dir, record)
         if cfg.shards > 1:
             print(f"split into {cfg.shards} shards on {trainer.num_devices} device(s)", flush=True)
         return _train_new(trainer, trainer.init(), run_dir, exp.keep_checkpoints, exp.tracking, on_epoch, film)
@@ -287,8 +292,9 @@ def _phase2_without_checkpoint(run_dir: Path, exp: ResumeExperiment):
                       f"from; start it again with `mjx-emp phase2 PHASE1_RUN_DIR --out {run_dir}`")
 
 
-def train_phase2(exp: Phase2Experiment, film: Film | None = None):
-    """Train phase 2 on a phase-1 run's skills in a new phase-2 directory; returns the final state."""
+def train_phase2(exp: Phase2Experiment, film: Film | None = None, record: dict | None = None):
+    """Train phase 2 on a phase-1 run's skills in a new phase-2 directory; returns the final state.
+    ``record`` (how it was asked for) is kept in the directory, as :func:`train` keeps it."""
     check_phase2(exp)
     from mjx_emp.phase2.build import make_phase2_trainer
 
@@ -300,6 +306,8 @@ def train_phase2(exp: Phase2Experiment, film: Film | None = None):
     with run_lock(out, "out"):
         print(f"phase 2 on the skills of {exp.run_dir} (epoch {epoch}), writing to {out}", flush=True)
         write_atomically(out / SKILLS_FILE, json.dumps(config_json(skills.cfg), indent=1))
+        if record is not None:
+            write_run_record(out, record)
         return _train_new(trainer, trainer.init(skills_state), out, exp.keep_checkpoints, exp.tracking, film=film)
 
 

@@ -21,6 +21,7 @@ import jax.numpy as jnp
 from mjx_emp.algos.registry import algorithm_of, make_agent
 from mjx_emp.commands import TrainExperiment
 from mjx_emp.run import loop, store
+from mjx_emp.run.provenance import write_run_record
 
 
 @dataclasses.dataclass(frozen=True)
@@ -67,9 +68,10 @@ def seed_run_dirs(base: str, seeds: tuple[int, ...]) -> list[str]:
     return [f"{base}-s{seed}" for seed in seeds]
 
 
-def train_seeds(exp: TrainExperiment) -> Any:
+def train_seeds(exp: TrainExperiment, record: dict | None = None) -> Any:
     """Train ``exp.seeds`` of ``exp.config`` as one vmapped program, one run directory per
-    seed (RUN_DIR-s<seed>); returns the stacked final state. The request is one that
+    seed (RUN_DIR-s<seed>), each keeping ``record`` (how it was asked for); returns the stacked
+    final state. The request is one that
     :func:`mjx_emp.commands.check_train` accepted (``jobs.train`` checks it)."""
     algorithm = algorithm_of(exp.config)
     base = exp.run_dir or store.default_run_dir(exp.config)
@@ -78,6 +80,8 @@ def train_seeds(exp: TrainExperiment) -> Any:
     with contextlib.ExitStack() as locks:
         for run_dir in dirs:
             locks.enter_context(store.run_lock(run_dir, "run_dir"))
+            if record is not None:
+                write_run_record(run_dir, record)
         return _train_group(exp, algorithm, dirs)
 
 

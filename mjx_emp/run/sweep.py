@@ -308,14 +308,19 @@ def _same_config(run_dir: Path, cfg: Any, where: str) -> None:
                           f"or give the row another name")
 
 
+def _budget(row: Row) -> dict[str, Any]:
+    """The row's step budget as an override (empty without one)."""
+    return {} if row.config.max_env_steps is None else {"max_env_steps": row.config.max_env_steps}
+
+
 def train_row(job: Job) -> list[str]:
     """Phase 1 of every seed of the job's row: new seeds train as one vmapped program, an
     interrupted group resumes as one, a finished run is left alone. Returns what was done."""
+    import jax  # noqa: F401 (loaded before the runs' provenance is taken, so it names the device)
+
     from mjx_emp.commands import ResumeExperiment, TrainExperiment
     from mjx_emp.run import jobs
-    from mjx_emp.run.provenance import PROVENANCE_FILE, run_record
-
-    import jax  # noqa: F401 (loaded before the runs' provenance is taken, so it names the device)
+    from mjx_emp.run.provenance import run_record
 
     row = job.row
     dirs = [Path(d) for d in job.run_dirs]
@@ -325,15 +330,11 @@ def train_row(job: Job) -> list[str]:
     todo = [i for i, (d, cfg) in enumerate(zip(dirs, configs)) if not finished(d, cfg)]
     if not todo:
         return ["phase 1 finished earlier"]
-    for i in todo:
-        dirs[i].mkdir(parents=True, exist_ok=True)
-        if not (dirs[i] / PROVENANCE_FILE).exists():
-            store.write_atomically(dirs[i] / PROVENANCE_FILE,
-                                   json.dumps(run_record(row.preset, row.overrides, job.command), indent=1))
+    record = run_record(row.preset, {**row.overrides, **_budget(row)}, job.command)
     started = [i for i in todo if store.newest_checkpoint_on_disk(dirs[i]) is not None]
     if row.group_seeds and len(todo) == len(dirs) and not started:
         base = str(dirs[0])[: -len(f"-s{row.seeds[0]}")]
-        jobs.train(TrainExperiment(config=row.config, run_dir=base, seeds=row.seeds))
+        jobs.train(TrainExperiment(config=row.config, run_dir=base, seeds=row.seeds), record=record)
         return [f"trained seeds {', '.join(map(str, row.seeds))} as one program"]
     if row.group_seeds and len(started) == len(dirs):
         from mjx_emp.run.seeds import resume_seeds
@@ -347,7 +348,7 @@ def train_row(job: Job) -> list[str]:
                                          max_env_steps=configs[i].max_env_steps or 0))
             done.append(f"resumed seed {row.seeds[i]}")
         else:
-            jobs.train(TrainExperiment(config=configs[i], run_dir=str(dirs[i])))
+            jobs.train(TrainExperiment(config=configs[i], run_dir=str(dirs[i])), record=record)
             done.append(f"trained seed {row.seeds[i]}")
     return done
 
@@ -357,7 +358,7 @@ def phase2_row(job: Job) -> list[str]:
     or left alone when finished."""
     from mjx_emp.commands import Phase2Experiment, ResumeExperiment
     from mjx_emp.run import jobs
-    from mjx_emp.run.provenance import PROVENANCE_FILE, run_record
+    from mjx_emp.run.provenance import run_record
 
     row = job.row
     if row.phase2 is None:
@@ -377,10 +378,8 @@ def phase2_row(job: Job) -> list[str]:
                 jobs.resume_phase2(ResumeExperiment(resume=str(phase2_dir), epochs=row.phase2.epochs))
                 done.append(f"resumed phase 2 of seed {seed}")
                 continue
-        phase2_dir.mkdir(parents=True, exist_ok=True)
-        store.write_atomically(phase2_dir / PROVENANCE_FILE,
-                               json.dumps(run_record(row.phase2_preset, row.phase2_overrides, job.command), indent=1))
-        jobs.train_phase2(Phase2Experiment(run_dir=str(run_dir), config=row.phase2))
+        jobs.train_phase2(Phase2Experiment(run_dir=str(run_dir), config=row.phase2),
+                          record=run_record(row.phase2_preset, row.phase2_overrides, job.command))
         done.append(f"trained phase 2 of seed {seed}")
     return done
 
