@@ -18,7 +18,6 @@ from mjx_emp.commands import ExportExperiment, TrainExperiment
 from mjx_emp.errors import ConfigError
 from mjx_emp.run import jobs, store
 
-
 EPOCH_FIELDS = ("epoch", "env_steps", "epoch_env_steps", "seconds", "env_steps_per_s", "flip_resets",
                 "checkpoint_blocked_s")
 """Fields of an epoch's metrics line that belong to the whole agent, whatever the algorithm."""

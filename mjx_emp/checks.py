@@ -45,6 +45,24 @@ def check_finite(cfg) -> None:
             raise ConfigError(f"{field.name}: must be a finite number; got {value}")
 
 
+LOOP_BOUNDS = {"epochs": 10**7, "max_env_steps": 10**15, "seed": 2**63 - 1}
+"""The largest value each of these config fields may take: far beyond any run (a million epochs
+of the paper's Ant is years of GPU time), small enough that a typo (``--epochs 1e20``) or a
+value JAX cannot hold (a seed of 2**64) is refused up front instead of running until killed
+or failing deep inside JAX."""
+
+
+def check_bounds(cfg) -> None:
+    """Every field of :data:`LOOP_BOUNDS` the config has is within its bound (and a seed >= 0)."""
+    for name, most in LOOP_BOUNDS.items():
+        value = getattr(cfg, name, None)
+        if value is not None and not isinstance(value, bool) and isinstance(value, int) and value > most:
+            raise ConfigError(f"{name}: must be at most {most:,}; got {value:,}")
+    seed = getattr(cfg, "seed", None)
+    if isinstance(seed, int) and seed < 0:
+        raise ConfigError(f"seed: must be >= 0; got {seed}")
+
+
 def check_capacity(cfg, name: str, least: dict[str, int]) -> None:
     """Buffer size ``name`` holds at least each of ``least`` (what -> rows): a minibatch, one
     collection; smaller, the buffer would be sampled before it could hold what it samples."""

@@ -23,6 +23,9 @@ from mjx_emp.algos.registry import LATENT_SKILLS, algorithm_of, all_presets
 from mjx_emp.algos.retired import RETIRED, Retired
 from mjx_emp.checks import check_levels
 from mjx_emp.commands import (
+    MAX_EPISODES,
+    MAX_FRAME_SIDE,
+    MAX_FRAMES,
     EvalExperiment,
     ExportExperiment,
     Phase2Experiment,
@@ -71,7 +74,12 @@ def run_rollout(cfg: RolloutExperiment) -> dict:
 
     from mjx_emp.envs.env import make_env
     from mjx_emp.nets import mlp_agent
-    from mjx_emp.rollout.hierarchy import Hierarchy, default_start, jit_init_rollout, jit_rollout
+    from mjx_emp.rollout.hierarchy import (
+        Hierarchy,
+        default_start,
+        jit_init_rollout,
+        jit_rollout,
+    )
 
     env = make_env(cfg.env)
     key = jax.random.key(cfg.seed)
@@ -145,19 +153,33 @@ def plot(exp: PlotExperiment) -> None:
         print(path)
 
 
-def render(exp: RenderExperiment) -> None:
-    """Write a video of a run's greedy top-level skill chain (or phase-2 policy), every level's goal
-    drawn; for a flat skill learner, its greedy skills from the prior one after another."""
-    for name in ("steps", "width", "height"):
-        if getattr(exp, name) < 1:
-            raise ConfigError(f"{name}: must be >= 1; got {getattr(exp, name)}")
+def check_render(exp: RenderExperiment) -> None:
+    """Refuse a render request's numbers before anything loads: frames, frame size, seed, fps, distance."""
+    for name, most in (("steps", MAX_FRAMES), ("width", MAX_FRAME_SIDE), ("height", MAX_FRAME_SIDE)):
+        if not 1 <= getattr(exp, name) <= most:
+            raise ConfigError(f"{name}: must be in [1, {most}]; got {getattr(exp, name)}")
+    check_seed(exp.seed)
     for name in ("fps", "distance"):
         if not (math.isfinite(getattr(exp, name)) and getattr(exp, name) > 0):
             raise ConfigError(f"{name}: must be a finite number > 0; got {getattr(exp, name)}")
-    from mjx_emp.viz.render import check_video, record_trained, render_frames, video_name, write_video
+
+
+def render(exp: RenderExperiment) -> None:
+    """Write a video of a run's greedy top-level skill chain (or phase-2 policy), every level's goal
+    drawn; for a flat skill learner, its greedy skills from the prior one after another."""
+    check_render(exp)
+    from mjx_emp.viz.render import (
+        check_video,
+        record_trained,
+        render_frames,
+        video_name,
+        write_video,
+    )
 
     out = Path(exp.out or Path(exp.run_dir) / video_name(exp.phase2))
     check_video(out, exp.width, exp.height)  # before the run is loaded
+    if exp.out:
+        store.output_target(out, "out")
     import jax
 
     if exp.phase2:
@@ -200,6 +222,12 @@ def report(exp: ReportExperiment) -> None:
         print(f"wrote block {exp.block or Path(exp.spec).stem} of {exp.into}")
 
 
+def check_seed(seed: int) -> None:
+    """An evaluation or render seed JAX can take: 0 <= seed < 2**63."""
+    if not 0 <= seed < 2**63:
+        raise ConfigError(f"seed: must be in [0, 2**63); got {seed}")
+
+
 def check_distinct_runs(run_dirs: tuple[str, ...], command: str) -> None:
     """At least one run directory, and none given twice: runs are aggregated as seeds, and the
     same run twice would count as two (``command`` names the CLI command in the message)."""
@@ -214,9 +242,12 @@ def check_distinct_runs(run_dirs: tuple[str, ...], command: str) -> None:
 def check_eval(exp: EvalExperiment) -> None:
     """Refuse an eval request before anything loads: episodes, and a run given twice (it
     would count as two seeds)."""
-    if exp.episodes < 1:
-        raise ConfigError(f"episodes: must be >= 1; got {exp.episodes}")
+    if not 1 <= exp.episodes <= MAX_EPISODES:
+        raise ConfigError(f"episodes: must be in [1, {MAX_EPISODES}]; got {exp.episodes}")
+    check_seed(exp.seed)
     check_distinct_runs(exp.run_dirs, "eval")
+    if exp.out:
+        store.output_target(Path(exp.out), "out")  # a place it cannot write is refused before the evaluation runs
 
 
 def evaluate(exp: EvalExperiment) -> dict:
@@ -349,16 +380,17 @@ def unknown_preset(name: str, known, usage: str, retired: dict[str, Retired] | N
 
 
 def canonical_args(argv: list[str]) -> list[str]:
-    """The command line in the one form the parser reads: ``train --resume RUN_DIR ...`` and
-    ``phase2 --resume DIR ...`` are ``resume RUN_DIR ...``; ``phase2 RUN_DIR ...`` names the
+    """The command line in the one form the parser reads: ``train --resume RUN_DIR ...`` is
+    ``resume RUN_DIR ...`` and ``phase2 --resume DIR ...`` is ``resume DIR ... --phase2``; ``phase2 RUN_DIR ...`` names the
     run's own Table-2 preset (:func:`with_phase2_preset`)."""
     command, rest = argv[:1], argv[1:]
     if command in (["train"], ["phase2"]):
+        phase2 = ["--phase2"] if command == ["phase2"] else []  # continue phase 2, never phase 1
         for i, arg in enumerate(rest):
             if arg == "--resume" and i + 1 < len(rest):
-                return ["resume", rest[i + 1], *rest[:i], *rest[i + 2:]]
+                return ["resume", rest[i + 1], *rest[:i], *rest[i + 2:], *phase2]
             if arg.startswith("--resume="):
-                return ["resume", arg.split("=", 1)[1], *rest[:i], *rest[i + 1:]]
+                return ["resume", arg.split("=", 1)[1], *rest[:i], *rest[i + 1:], *phase2]
     if command == ["phase2"]:
         return ["phase2", *with_phase2_preset(rest)]
     if command == ["train"] and rest and not rest[0].startswith("-"):
@@ -442,11 +474,42 @@ def parse(argv: list[str]) -> tuple[Any, Any]:
         Annotated[make_type(), tyro.conf.subcommand(name, description=" ".join(help_text.split()))]
         for name, (make_type, _, help_text) in COMMANDS.items()
     )]
-    exp = tyro.cli(choices, args=argv, prog="mjx-emp")  # exits on a missing or unknown command
+    exp = parse_quietly(choices, argv)
     run = COMMANDS[argv[0]][1]
     if argv[0] in ("train", "phase2"):  # the preset a new run is made from, kept beside it with its overrides
         run = functools.partial(run, record=new_run_record(argv[1], exp.config, argv))
     return run, exp
+
+
+def parse_quietly(choices: Any, argv: list[str]) -> Any:
+    """tyro's parse of ``argv``; what it refuses (a value of the wrong type, an unknown flag, a
+    missing command) becomes one ConfigError line naming the flag, instead of tyro's panel."""
+    import contextlib
+    import io
+
+    panel = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(panel):
+            return tyro.cli(choices, args=argv, prog="mjx-emp")
+    except SystemExit as stop:
+        if stop.code in (0, None):
+            sys.stderr.write(panel.getvalue())
+            raise
+        raise ConfigError(panel_line(panel.getvalue()) or f"arguments: cannot parse {' '.join(argv)}") from None
+
+
+def panel_line(panel: str) -> str:
+    """The message of a tyro error panel on one line: its title's and first lines' text, without
+    the box, the flag's help and the pointer to --help."""
+    lines = []
+    for raw in panel.splitlines():
+        text = raw.strip().strip("│╭╮╰╯─┌┐└┘ ").strip()
+        if not text or set(text) <= set("─━ "):
+            continue
+        if text.startswith(("Argument helptext", "For full helptext", "Perhaps you meant")):
+            break
+        lines.append(text)
+    return "; ".join(lines)
 
 
 def new_run_record(preset: str, cfg: Any, argv: list[str]) -> dict:

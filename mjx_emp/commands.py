@@ -71,6 +71,8 @@ class TrainExperiment(Generic[ConfigT]):
     """Several hosts: how many processes (or JAX_NUM_PROCESSES)."""
     process_id: int = -1
     """Several hosts: this process's index, 0 the lead (or JAX_PROCESS_ID)."""
+    join_timeout: int = 300
+    """Several hosts: seconds to wait for every process to join the coordinator before giving up."""
     seeds: tuple[int, ...] = ()
     """Train these seeds of the config together, as one vmapped program (the config's own seed
     is then unused); each seed gets its own run directory RUN_DIR-s<seed>, resumable and
@@ -92,6 +94,13 @@ class ResumeExperiment:
     only settings a resume may change: neither alters what an epoch computes."""
     fallback: bool = False
     """If the newest checkpoint is unusable, resume from the newest one that restores."""
+    group: bool = False
+    """Continue every run of RUN_DIR's seed group (seeds trained in one program, `train --seeds`)
+    as one program again, so that each ends where the uninterrupted group would; resumed alone,
+    a seed of a group runs a program of another batch shape and drifts from it in the last bits."""
+    phase2: bool = False
+    """Continue the run's phase 2 (RUN_DIR/phase2, or RUN_DIR itself if it is a phase-2 directory);
+    a run without one is refused (`mjx-emp phase2 --resume RUN_DIR` means this)."""
     keep_checkpoints: int = 3
     """How many of the newest epoch checkpoints to keep."""
     num_devices: int = 0
@@ -288,9 +297,17 @@ def _check_devices(num_devices: int) -> None:
         raise ConfigError(f"num_devices: must be >= 0 (0: every local device); got {num_devices}")
 
 
+MAX_FRAMES = 100_000
+"""The longest video a command films (about 2.8 hours at 10 frames per second)."""
+MAX_FRAME_SIDE = 8192
+"""The widest and tallest frame (OpenGL's offscreen buffers stop at 8192-16384 pixels)."""
+MAX_EPISODES = 10**7
+"""The most evaluation episodes per level that `mjx-emp eval` rolls out."""
+
+
 def _check_tracking(tracking: Tracking) -> None:
-    if tracking.video_steps < 0:
-        raise ConfigError(f"video_steps: must be >= 0 (0: no video); got {tracking.video_steps}")
+    if not 0 <= tracking.video_steps <= MAX_FRAMES:
+        raise ConfigError(f"video_steps: must be in [0, {MAX_FRAMES}] (0: no video); got {tracking.video_steps}")
 
 
 def check_train(exp: TrainExperiment) -> None:

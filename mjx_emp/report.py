@@ -11,12 +11,9 @@ starts JAX.
 
 from __future__ import annotations
 
-import json
 import math
 import os
-import shutil
-import tempfile
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -378,24 +375,6 @@ def legend_text(name: str, band: Band) -> str:
     return f"{name} (n={band.n})"
 
 
-def replace_atomically(path: Path, write: Callable[[Path], None]) -> None:
-    """Have ``write`` fill a temporary file beside ``path``, then move it over ``path`` in one
-    step, so a reader never sees half a file; an existing file's permissions carry over."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=path.suffix)
-    os.close(handle)
-    try:
-        write(Path(temporary))
-        if path.exists():
-            shutil.copymode(path, temporary)
-        else:
-            os.chmod(temporary, 0o644)
-        os.replace(temporary, path)
-    except BaseException:
-        Path(temporary).unlink(missing_ok=True)
-        raise
-
-
 def seed_band_figure(rows: Sequence[dict], curve: str = "top_volume", out: Path | str = "seed_bands.png",
                      group_by: str = "row", title: str | None = None) -> Chart:
     """A PNG of ``curve`` against env steps: per group the mean over its seeds with a shaded
@@ -404,7 +383,7 @@ def seed_band_figure(rows: Sequence[dict], curve: str = "top_volume", out: Path 
     the curve is a ConfigError."""
     from matplotlib.figure import Figure
 
-    from mjx_emp.run.store import writing
+    from mjx_emp.run.store import replace_file
 
     bands = seed_bands(rows, curve, group_by)
     if not bands:
@@ -422,9 +401,8 @@ def seed_band_figure(rows: Sequence[dict], curve: str = "top_volume", out: Path 
     ax.grid(alpha=0.3)
     ax.legend(fontsize="small")
     fig.tight_layout()
-    path = Path(out)
-    with writing(path, chosen=True):
-        replace_atomically(path, lambda temporary: fig.savefig(temporary, dpi=100, format="png"))
+    path = replace_file(Path(out), lambda temporary: fig.savefig(temporary, dpi=100, format="png"), chosen=True,
+                        field="figure")
     legend = [text.get_text() for text in ax.get_legend().get_texts()]
     plotted = {line.get_label(): line for line in ax.get_lines()}
     series = {name: Band(band.n, [float(v) for v in plotted[legend_text(name, band)].get_xdata()],
@@ -484,15 +462,14 @@ def with_block(text: str, name: str, content: str, markdown_file: Path) -> str:
 def write_block(markdown_file: Path | str, name: str, text: str) -> bool:
     """Put ``text`` between block ``name``'s marker lines of ``markdown_file``, atomically;
     True where the file changed (an unchanged block leaves the file untouched)."""
-    from mjx_emp.run.store import writing
+    from mjx_emp.run.store import replace_file
 
     path = Path(markdown_file)
     old = read_text(path, "block")
     new = with_block(old, name, text, path)
     if new == old:
         return False
-    with writing(path, chosen=True):
-        replace_atomically(path, lambda temporary: temporary.write_text(new, encoding="utf-8"))
+    replace_file(path, new, chosen=True, field="into")
     return True
 
 
@@ -529,10 +506,14 @@ def report_spec(spec_path: str, results: str = "", metrics: Sequence[str] = (), 
     table); with ``into``, the text replaces block ``block`` (default: the spec's name) of that
     Markdown file. The spec's ``[report]`` table may name ``metrics`` and ``baseline``."""
     from mjx_emp.run.rows import RESULTS_DIR
+    from mjx_emp.run.store import output_target
     from mjx_emp.run.sweep import load_spec
 
     if reps < 1:
         raise ConfigError(f"reps: must be >= 1; got {reps}")
+    for path, field in ((into, "into"), (figure, "figure")):
+        if path:
+            output_target(Path(path), field)  # before anything is read: a FIFO would block, a device be lost
     spec = load_spec(spec_path)
     results_path = Path(results or Path(RESULTS_DIR) / f"{spec.name}.jsonl")
     rows = spec_rows(spec, results_path)

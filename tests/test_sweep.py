@@ -13,12 +13,12 @@ import time
 from pathlib import Path
 
 import pytest
+from tiny import mjx_emp, run_cli
 
 from mjx_emp.errors import ConfigError
 from mjx_emp.run.evaluate import row_figures
 from mjx_emp.run.rows import read_rows
 from mjx_emp.run.sweep import load_spec
-from tests.tiny import mjx_emp, run_cli
 
 ROOT = Path(__file__).resolve().parents[1]
 SMOKE = ROOT / "experiments" / "smoke-point-mass.toml"

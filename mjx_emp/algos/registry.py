@@ -13,12 +13,23 @@ from collections.abc import Callable, Mapping
 from typing import Any, Protocol
 
 from mjx_emp.algos.he.config import SHARD_SPLIT as HE_SHARD_SPLIT
-from mjx_emp.algos.he.config import GcrlConfig, HEConfig, check_gcrl_config, check_train_config
+from mjx_emp.algos.he.config import (
+    GcrlConfig,
+    HEConfig,
+    check_gcrl_config,
+    check_train_config,
+)
 from mjx_emp.algos.he.presets import GCRL_PRESETS
 from mjx_emp.algos.he.presets import PRESETS as HE_PRESETS
 from mjx_emp.algos.retired import REDEFINED, RETIRED
 from mjx_emp.algos.skills.config import SHARD_SPLIT as SKILL_SHARD_SPLIT
-from mjx_emp.algos.skills.config import DadsConfig, DiaynConfig, HidioConfig, MetraConfig, check_skill_config
+from mjx_emp.algos.skills.config import (
+    DadsConfig,
+    DiaynConfig,
+    HidioConfig,
+    MetraConfig,
+    check_skill_config,
+)
 from mjx_emp.algos.skills.presets import PRESETS as SKILL_PRESETS
 from mjx_emp.checks import config_from_dict, shard_config
 from mjx_emp.errors import ConfigError
@@ -92,13 +103,17 @@ class Algorithm:
 
 
 def _he_agent(cfg: HEConfig, shard_axes: tuple[str, ...]) -> Agent:
-    from mjx_emp.algos.he.agent import HEAgent  # deferred: JAX loads only when an agent is built
+    from mjx_emp.algos.he.agent import (
+        HEAgent,  # deferred: JAX loads only when an agent is built
+    )
 
     return HEAgent(cfg, shard_axes)
 
 
 def _skill_agent(cfg: Any, shard_axes: tuple[str, ...]) -> Agent:
-    from mjx_emp.algos.skills.agent import SkillAgent  # deferred: JAX loads only when an agent is built
+    from mjx_emp.algos.skills.agent import (
+        SkillAgent,  # deferred: JAX loads only when an agent is built
+    )
 
     return SkillAgent(cfg, shard_axes)
 

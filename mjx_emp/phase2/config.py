@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from mjx_emp.checks import check_capacity, check_counts, check_finite, check_learning
+from mjx_emp.checks import check_bounds, check_capacity, check_counts, check_finite, check_learning
 from mjx_emp.errors import ConfigError
 
 
@@ -110,5 +110,6 @@ def check_phase2_config(cfg: Phase2Config, goal_size: int | None = None) -> None
     if cfg.phase1_epoch < -1:
         raise ConfigError(f"phase1_epoch: an epoch >= 0, or -1 for the newest; got {cfg.phase1_epoch}")
     check_finite(cfg)
+    check_bounds(cfg)
     check_capacity(cfg, "replay_capacity", {"a minibatch (batch_size)": cfg.batch_size,
                                             "one episode of attempts per environment (num_envs x n)": cfg.num_envs * cfg.n})

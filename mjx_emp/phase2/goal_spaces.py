@@ -55,7 +55,13 @@ from mjx_emp.nets import (
     random_policy,
 )
 from mjx_emp.phase2.config import Phase2Config, check_phase2_config
-from mjx_emp.replay import ReplayBuffer, flatten_rows, replay_init, replay_insert, replay_sample
+from mjx_emp.replay import (
+    ReplayBuffer,
+    flatten_rows,
+    replay_init,
+    replay_insert,
+    replay_sample,
+)
 from mjx_emp.rollout.collect import CollectTotals, collect
 from mjx_emp.rollout.hierarchy import Hierarchy, Params, RolloutPlan, init_rollout
 from mjx_emp.tracing import count_trace

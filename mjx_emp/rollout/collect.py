@@ -17,7 +17,15 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from mjx_emp.rollout.hierarchy import EpisodeEnd, Hierarchy, RolloutState, RolloutStats, StartFn, Transition, rollout
+from mjx_emp.rollout.hierarchy import (
+    EpisodeEnd,
+    Hierarchy,
+    RolloutState,
+    RolloutStats,
+    StartFn,
+    Transition,
+    rollout,
+)
 
 
 @struct.dataclass

@@ -283,6 +283,10 @@ def stored_epoch(state: Any) -> int | None:
     return None if epoch is None else int(np.asarray(epoch).reshape(-1)[0])
 
 
+RETENTION_RETRIES = 20
+"""How often a reader starts again after the checkpoint it read was removed under it."""
+
+
 @dataclasses.dataclass
 class Checkpoints:
     """The checkpoints of one run directory: save every epoch, restore the latest good one."""
@@ -455,8 +459,22 @@ class Checkpoints:
         """The newest checkpoint that restores, as ``(epoch, state)``.
 
         Without ``fallback`` a bad newest checkpoint raises CheckpointError; with it, older
-        checkpoints are tried in turn (each skipped one is logged).
+        checkpoints are tried in turn (each skipped one is logged). A reader beside a live trainer
+        may see the checkpoint it reads removed by the trainer's retention (``--keep-checkpoints``)
+        halfway: a checkpoint whose folder is gone after a failed read was not damaged, it was
+        removed, and the reader starts again from the newest checkpoint there is then.
         """
+        for _ in range(RETENTION_RETRIES):
+            found = self._restore_newest(template, expected, fallback)
+            if found is not None:
+                return found
+            self.manager.reload()  # the trainer moved on: read its listing again
+        raise CheckpointError(f"{self.directory}: every checkpoint was removed while it was read, "
+                              f"{RETENTION_RETRIES} times; is a trainer keeping very few (--keep-checkpoints)?")
+
+    def _restore_newest(self, template: Any, expected: Any, fallback: bool) -> tuple[int, Any] | None:
+        """:meth:`restore_latest`'s one pass over the listing; None where a checkpoint it read was
+        removed meanwhile (by the run's writer, never damaged)."""
         epochs = self.epochs()
         if not epochs:
             raise CheckpointError(f"{self.directory}: no complete checkpoint to resume from")
@@ -468,6 +486,8 @@ class Checkpoints:
                     self.set_aside_newer_than(epoch)
                 return epoch, state
             except CheckpointError as err:
+                if self.read_only and not self.step_dir(epoch).exists():
+                    return None
                 if not fallback:
                     older = [e for e in epochs if e < epoch]
                     use = "`mjx-emp resume --fallback` continues from" if self.read_only else "pass --fallback to use"

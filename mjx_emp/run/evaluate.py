@@ -25,7 +25,6 @@ from mjx_emp.run import jobs, store
 from mjx_emp.run.provenance import provenance, read_run_record
 from mjx_emp.run.rows import ROW_SCHEMA
 
-
 COVERAGE_SKILLS = 48
 """Skills per coverage count, as in METRA's Ant figures."""
 

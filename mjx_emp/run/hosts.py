@@ -17,10 +17,12 @@ COORDINATOR_ENV, PROCESSES_ENV, PROCESS_ID_ENV = "JAX_COORDINATOR_ADDRESS", "JAX
 """Environment variables read when the flags are not given (JAX itself reads the first)."""
 
 
-def join_hosts(coordinator_address: str = "", num_processes: int = 0, process_id: int = -1) -> bool:
+def join_hosts(coordinator_address: str = "", num_processes: int = 0, process_id: int = -1,
+               timeout_s: int = 300) -> bool:
     """Start ``jax.distributed`` when a coordinator is given (flag or ``JAX_COORDINATOR_ADDRESS``),
     with the process count and id from the flags or ``JAX_NUM_PROCESSES`` / ``JAX_PROCESS_ID``.
-    Must run before JAX is used. Returns whether this process joined several."""
+    Must run before JAX is used. Says that it is joining; a coordinator that does not answer
+    within ``timeout_s`` is a ConfigError naming the address. Returns whether this process joined several."""
     coordinator = coordinator_address or os.environ.get(COORDINATOR_ENV, "")
     if not coordinator:
         return False
@@ -35,8 +37,18 @@ def join_hosts(coordinator_address: str = "", num_processes: int = 0, process_id
         raise ConfigError(f"process_id: must be in [0, {count}); got {index}")
     import jax
 
+    if timeout_s < 1:
+        raise ConfigError(f"join_timeout: must be >= 1 second; got {timeout_s}")
     jax.config.update("jax_cpu_collectives_implementation", "gloo")  # CPU devices of several processes
-    jax.distributed.initialize(coordinator_address=coordinator, num_processes=count, process_id=index)
+    print(f"joining {coordinator} as process {index} of {count} (waiting up to {timeout_s} s) ...", flush=True)
+    try:
+        jax.distributed.initialize(coordinator_address=coordinator, num_processes=count, process_id=index,
+                                   initialization_timeout=timeout_s)
+    except Exception as err:  # jaxlib raises its own error types for an unreachable or refused coordinator
+        reason = " ".join(str(err).split())[:300]
+        raise ConfigError(f"coordinator_address: could not join {coordinator} as process {index} of {count} within "
+                          f"{timeout_s} s ({type(err).__name__}: {reason}); start process 0 first and check the "
+                          f"address and port") from None
     return True
 
 

@@ -30,8 +30,8 @@ from mjx_emp.commands import (
 )
 from mjx_emp.errors import ConfigError, RenderError
 from mjx_emp.phase2.config import Phase2Config
-from mjx_emp.run.loop import train_to_the_end
-from mjx_emp.run.provenance import write_run_record
+from mjx_emp.run.loop import env_steps_of, train_to_the_end
+from mjx_emp.run.provenance import EXPORT_OF, read_run_record, write_run_record
 from mjx_emp.run.store import (
     CONFIG_FILE,
     METRICS_FILE,
@@ -128,7 +128,7 @@ def train(exp: TrainExperiment, on_epoch: Callable[[dict], None] | None = None, 
     from mjx_emp.run.hosts import is_lead, join_hosts, wait_for_all
 
     check_train(exp)
-    several = join_hosts(exp.coordinator_address, exp.num_processes, exp.process_id)
+    several = join_hosts(exp.coordinator_address, exp.num_processes, exp.process_id, exp.join_timeout)
     if exp.seeds:
         if several:
             raise ConfigError("seeds: a seed group trains in one process; drop --seeds or the coordinator")
@@ -165,7 +165,7 @@ def check_memory(program) -> None:
 
 
 def _restore(run_dir: Path, trainer, template, fallback: bool = False, epoch: int | None = None,
-             writer: bool = False):
+             writer: bool = False, epoch_field: str = "phase1_epoch"):
     """``(epoch, state)`` of ``run_dir``'s newest good checkpoint, or of ``epoch``'s, for ``trainer``.
 
     Only the run's ``writer`` (a resume, holding the run's lock) may change the checkpoint folder
@@ -182,7 +182,7 @@ def _restore(run_dir: Path, trainer, template, fallback: bool = False, epoch: in
         if epoch is None:
             return checkpoints.restore_latest(template, trainer.cfg, fallback)
         if epoch not in epochs:
-            raise ConfigError(f"phase1_epoch: {run_dir} has checkpoints of epochs {epochs}; got {epoch}")
+            raise ConfigError(f"{epoch_field}: {run_dir} has checkpoints of epochs {epochs}; got {epoch}")
         return epoch, checkpoints.restore(epoch, template, trainer.cfg)
 
 
@@ -192,7 +192,7 @@ def _with_stops(cfg, stops: dict | None):
 
 
 def load_run(run_dir: Path, fallback: bool = False, stops: dict | None = None, field: str = "run_dir",
-             epoch: int | None = None):
+             epoch: int | None = None, epoch_field: str = "phase1_epoch"):
     """A run's agent and its newest good checkpoint (or ``epoch``'s): ``(agent, epoch, state)``.
 
     ``stops`` replaces the run's loop fields (epochs, step budget); ``field`` is the CLI field
@@ -205,10 +205,12 @@ def load_run(run_dir: Path, fallback: bool = False, stops: dict | None = None, f
         from mjx_emp.run.devices import ShardedAgent, shard_slice
 
         program = ShardedAgent(cfg, 1)
-        epoch, state = _restore(Path(run_dir), program, jax.eval_shape(program.init), fallback, epoch)
+        epoch, state = _restore(Path(run_dir), program, jax.eval_shape(program.init), fallback, epoch,
+                                epoch_field=epoch_field)
         return program.alone, epoch, shard_slice(state, 0)
     trainer = make_agent(cfg)
-    epoch, state = _restore(Path(run_dir), trainer, jax.eval_shape(trainer.init), fallback, epoch)
+    epoch, state = _restore(Path(run_dir), trainer, jax.eval_shape(trainer.init), fallback, epoch,
+                            epoch_field=epoch_field)
     return trainer, epoch, state
 
 
@@ -221,10 +223,11 @@ def export_skills(exp: ExportExperiment) -> tuple[Path, int]:
     check_export(exp)
     if (Path(exp.run_dir) / SKILLS_FILE).exists():
         raise ConfigError(f"run_dir: {exp.run_dir} is a phase-2 directory; export the phase-1 run it was trained on")
-    agent, epoch, state = load_run(Path(exp.run_dir), epoch=None if exp.epoch < 0 else exp.epoch)
+    agent, epoch, state = load_run(Path(exp.run_dir), epoch=None if exp.epoch < 0 else exp.epoch, epoch_field="epoch")
     out = fresh_run_dir(exp.out, "out", "a skills export", None)
     with run_lock(out, "out"):
         write_config(out, agent.cfg)
+        write_run_record(out, {**read_run_record(Path(exp.run_dir)), EXPORT_OF: str(exp.run_dir), "epoch": epoch})
         metrics = Path(exp.run_dir) / METRICS_FILE
         if metrics.exists():
             shutil.copyfile(metrics, out / METRICS_FILE)
@@ -262,6 +265,10 @@ def _resume(exp: ResumeExperiment, load: Callable, start_over: Callable, film: F
         trainer, epoch, state = load(run_dir, exp.fallback, resumed_stops(exp), field="resume")
         if trainer.cfg.epochs < epoch:  # before anything is rewritten
             raise ConfigError(f"epochs: {run_dir} is at epoch {epoch}; give at least that many; got {trainer.cfg.epochs}")
+        steps = env_steps_of(state)
+        if exp.max_env_steps and steps >= exp.max_env_steps:  # a budget already spent would train nothing
+            raise ConfigError(f"max_env_steps: {run_dir} is at {steps} env steps (epoch {epoch}); give a larger "
+                              f"budget, or 0 to lift it; got {exp.max_env_steps}")
         from mjx_emp.run.checkpoint import Checkpoints
 
         print(f"resuming {run_dir} from epoch {epoch}", flush=True)
@@ -275,9 +282,41 @@ def resume(exp: ResumeExperiment, film: Film | None = None):
     """Continue a run directory from its newest good checkpoint: a phase-2 directory (it holds
     skills.json) as :func:`resume_phase2` does, a phase-1 run on ``exp.num_devices`` devices
     otherwise; returns the final state."""
+    if exp.phase2 and not (Path(exp.resume) / SKILLS_FILE).exists():
+        phase2_dir = Path(exp.resume) / PHASE2_SUBDIR
+        if not (phase2_dir / CONFIG_FILE).exists():
+            raise ConfigError(f"resume: {exp.resume} holds no phase 2 to continue; start one with "
+                              f"`mjx-emp phase2 {exp.resume}`")
+        exp = dataclasses.replace(exp, resume=str(phase2_dir))
     if (Path(exp.resume) / SKILLS_FILE).exists():
         return resume_phase2(exp, film)
+    from mjx_emp.run.seeds import seed_group_of
+
+    group = seed_group_of(Path(exp.resume))
+    if exp.group:
+        return _resume_group(exp, group)
+    if len(group) > 1:
+        print(f"note: {exp.resume} trained in one program with {len(group) - 1} other seed(s); resumed alone it "
+              f"drifts from the group in the last bits (a program of another batch shape); `mjx-emp resume "
+              f"{exp.resume} --group` continues the group as one", file=sys.stderr, flush=True)
     return _resume(exp, functools.partial(load_program, num_devices=exp.num_devices), _program_from_config, film)
+
+
+def _resume_group(exp: ResumeExperiment, group: list[Path]):
+    """``exp`` for every run of a seed group, as one program (:func:`mjx_emp.run.seeds.resume_seeds`)."""
+    from mjx_emp.run.seeds import resume_seeds
+
+    check_resume(exp)
+    if len(group) < 2:
+        raise ConfigError(f"group: {exp.resume} was trained alone, not in a seed group; resume it without --group")
+    if exp.tracking.on() or exp.num_devices > 1 or exp.fallback:
+        raise ConfigError("group: a seed group resumes on one device, untracked, from checkpoints every seed has; "
+                          "drop --tensorboard/--wandb, --num-devices and --fallback")
+    missing = [str(d) for d in group if newest_checkpoint_on_disk(d) is None]
+    if missing:
+        raise ConfigError(f"group: {', '.join(missing)} hold no checkpoint; resume the others alone")
+    configs = [_with_stops(read_run_config(d, "resume"), resumed_stops(exp)) for d in group]
+    return resume_seeds(group, configs, exp.keep_checkpoints)
 
 
 def _program_from_config(run_dir: Path, exp: ResumeExperiment):

@@ -81,7 +81,7 @@ def _epoch_of(state) -> int:
     return _first(state.epoch)
 
 
-def _env_steps_of(state) -> int:
+def env_steps_of(state) -> int:
     """A train state's environment steps so far (shard 0 of a split run holds the whole run's)."""
     from mjx_emp.counters import StepCounter
 
@@ -92,7 +92,7 @@ def _budget_spent(states: list, budgets: list[int | None]) -> bool:
     """Whether training stops for its step budget: every member state has reached its
     ``max_env_steps`` (None: no budget, never spent)."""
     return all(budget is not None for budget in budgets) and all(
-        _env_steps_of(state) >= budget for state, budget in zip(states, budgets))
+        env_steps_of(state) >= budget for state, budget in zip(states, budgets))
 
 
 def train_members(program, state, members: list[Member], report: Callable[[dict], None],

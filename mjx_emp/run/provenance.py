@@ -24,6 +24,9 @@ UNKNOWN = "unknown"
 PROVENANCE_FILE = "provenance.json"
 """A run directory's record of how its training was started."""
 
+EXPORT_OF = "export_of"
+"""The provenance field of a skills export (`mjx-emp export`): the run directory it was taken from."""
+
 PACKAGES = ("mjx-emp", "jax", "jaxlib", "mujoco", "mujoco-mjx", "flax", "optax", "orbax-checkpoint")
 """The packages whose versions decide what a run computes."""
 

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from mjx_emp.errors import ConfigError
-from mjx_emp.run.store import writing
+from mjx_emp.run.store import output_target, writing
 
 RESULTS_DIR = "results"
 """Where a spec's rows go by default: results/<spec name>.jsonl."""
@@ -32,9 +32,8 @@ def row_key(row: dict[str, Any]) -> tuple[str, str, str]:
 def append_row(path: Path, row: dict[str, Any]) -> None:
     """Append ``row`` as one line of ``path`` (created with its folder), flushed to disk. A torn
     line left by an earlier writer's kill is ended first, so it never swallows this row."""
-    path = Path(path)
+    path = output_target(Path(path), "results", make_folder=True)
     with writing(path, chosen=True):
-        path.parent.mkdir(parents=True, exist_ok=True)
         line = json.dumps(row) + "\n"
         with open(path, "ab+") as f:
             f.seek(0, os.SEEK_END)

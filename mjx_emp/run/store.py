@@ -13,9 +13,11 @@ import dataclasses
 import errno
 import json
 import os
+import stat
 import sys
+import tempfile
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 from mjx_emp.algos.registry import (
@@ -28,6 +30,7 @@ from mjx_emp.algos.registry import (
 from mjx_emp.checks import config_from_dict
 from mjx_emp.errors import ConfigError, WriteError
 from mjx_emp.phase2.config import Phase2Config
+from mjx_emp.run.provenance import EXPORT_OF, PROVENANCE_FILE
 
 CONFIG_FILE = "config.json"
 
@@ -101,22 +104,77 @@ def writing(path: Path, run_dir: Path | None = None, chosen: bool = False) -> It
         raise WriteError(message, exit_code=2 if chosen else 1) from None
 
 
-def write_atomically(path: Path, text: str, run_dir: Path | None = None, chosen: bool = False) -> None:
-    """Replace ``path`` with ``text`` so that a reader (or a crash) sees the old or the new file;
-    a write that fails for want of space or permission raises WriteError (:func:`writing`) and
-    leaves the old file."""
+KIND_OF_FILE = ((stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"), (stat.S_ISFIFO, "a FIFO"),
+                (stat.S_ISSOCK, "a socket"), (stat.S_ISDIR, "a directory"))
+
+
+def output_target(path: Path, field: str = "out", make_folder: bool = False) -> Path:
+    """The file a write to ``path`` replaces: ``path`` when it is absent or a regular file; the
+    regular file a symlink leads to (written through the link, which stays). Anything else is
+    refused with a ConfigError naming ``field``, before any work is done: a device, a FIFO, a
+    socket or a directory (every file here is replaced whole, by a rename, and renaming over
+    such a thing would destroy it: ``--out /dev/null`` run as root would replace the machine's
+    /dev/null), a dangling symlink or a loop, a folder that does not exist (``make_folder``
+    creates it instead: for paths the library chooses) or a folder that is a file."""
     path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    with writing(path, run_dir, chosen):
+    try:
+        info = path.stat()
+    except FileNotFoundError:
+        if path.is_symlink():
+            raise ConfigError(f"{field}: {str(path)!r} is a symlink to nothing ({os.readlink(path)!r}); give a "
+                              f"file path") from None
+        info = None
+    except OSError as err:  # a symlink loop, a path through a file
+        raise ConfigError(f"{field}: cannot use {str(path)!r} ({err.strerror}); give a file path") from None
+    if info is not None:
+        kind = next((what for test, what in KIND_OF_FILE if test(info.st_mode)), None)
+        if kind is not None:
+            raise ConfigError(f"{field}: {str(path)!r} is {kind}, not a regular file; mjx-emp replaces a file whole "
+                              f"(write, then rename over it), which would destroy {kind}: give a file path")
+        return path.resolve() if path.is_symlink() else path
+    folder = path.parent
+    if make_folder:
         try:
-            with open(tmp, "w") as f:
-                f.write(text)
-                f.flush()
+            folder.mkdir(parents=True, exist_ok=True)
+        except OSError as err:
+            raise ConfigError(f"{field}: cannot create the folder {str(folder)!r} ({err.strerror})") from None
+    elif not folder.is_dir():
+        what = "is not a folder" if folder.exists() else "does not exist"
+        raise ConfigError(f"{field}: the folder of {str(path)!r} {what}; create it first or choose another path")
+    return path
+
+
+def replace_file(path: Path, content: str | bytes | Callable[[Path], None], run_dir: Path | None = None,
+                 chosen: bool = False, field: str = "out") -> Path:
+    """Write ``path`` whole so that a reader (or a crash) sees the old file or the new one, never
+    half of one: the content (text, bytes, or a function that writes a file at the path it is
+    given) goes to a temporary file beside it, is flushed to disk, then renamed over it. Only a
+    regular file is ever replaced (:func:`output_target`: other things and missing folders are
+    refused; a folder is created where the library chose the path, ``chosen`` False). A write that
+    fails for want of space or permission raises one WriteError naming the file and ``run_dir``'s
+    newest intact checkpoint (:func:`writing`) and leaves the old file. Returns the file written."""
+    target = output_target(Path(path), field, make_folder=not chosen)
+    with writing(target, run_dir, chosen):
+        handle, temporary = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.", suffix=target.suffix)
+        os.close(handle)
+        try:
+            if callable(content):
+                content(Path(temporary))
+            else:
+                with open(temporary, "wb") as f:
+                    f.write(content.encode() if isinstance(content, str) else content)
+            with open(temporary, "rb") as f:
                 os.fsync(f.fileno())
-            os.replace(tmp, path)
+            os.chmod(temporary, stat.S_IMODE(target.stat().st_mode) if target.exists() else 0o644)
+            os.replace(temporary, target)
         finally:
-            if tmp.exists():
-                tmp.unlink(missing_ok=True)
+            Path(temporary).unlink(missing_ok=True)
+    return target
+
+
+def write_atomically(path: Path, text: str, run_dir: Path | None = None, chosen: bool = False) -> None:
+    """Replace ``path`` with ``text`` (:func:`replace_file`)."""
+    replace_file(path, text, run_dir, chosen)
 
 
 def read_run_config(run_dir: Path, field: str = "resume", config_type: type | None = None,
@@ -126,14 +184,24 @@ def read_run_config(run_dir: Path, field: str = "resume", config_type: type | No
     Without ``config_type`` the file holds an algorithm's config, which names its algorithm
     (see :mod:`mjx_emp.algos.registry`); phase-2 directories pass ``Phase2Config``.
     """
-    path = run_dir / file
+    path = Path(run_dir) / file
+    if Path(run_dir).exists() and not Path(run_dir).is_dir():
+        raise ConfigError(f"{field}: {str(run_dir)!r} is a file, not a run directory")
     try:
         values = json.loads(path.read_text())
-        return config_from_json(values) if config_type is None else config_from_dict(values, config_type)
     except FileNotFoundError as err:
         raise ConfigError(f"{field}: {str(run_dir)!r} has no {file}; is it a run directory?") from err
-    except (json.JSONDecodeError, TypeError, ConfigError) as err:
-        raise ConfigError(f"{field}: {path} is not a valid run config ({err})") from err
+    except OSError as err:  # a symlink loop, a folder in its place, no permission
+        raise ConfigError(f"{field}: cannot read {path} ({err.strerror}); is it a run directory?") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as err:
+        raise ConfigError(f"{field}: {path} is not a valid run config ({err})") from None
+    if not isinstance(values, dict):
+        raise ConfigError(f"{field}: {path} is not a valid run config (a JSON {type(values).__name__}, "
+                          f"not an object of config fields)")
+    try:
+        return config_from_json(values) if config_type is None else config_from_dict(values, config_type)
+    except (TypeError, ValueError) as err:
+        raise ConfigError(f"{field}: {path} is not a valid run config ({err})") from None
 
 
 def parse_metrics(text: str) -> tuple[list[tuple[str, dict]], list[str]]:
@@ -158,8 +226,14 @@ def parse_metrics(text: str) -> tuple[list[tuple[str, dict]], list[str]]:
 
 
 def read_metrics_text(path: Path) -> str:
-    """A metrics file's text; bytes that are not UTF-8 become U+FFFD, so their line is reported, not fatal."""
-    return path.read_bytes().decode("utf-8", errors="replace")
+    """A metrics file's text; bytes that are not UTF-8 become U+FFFD, so their line is reported, not fatal.
+    A file that cannot be read at all (a symlink loop, a folder in its place) is a ConfigError."""
+    try:
+        return path.read_bytes().decode("utf-8", errors="replace")
+    except FileNotFoundError:
+        raise
+    except OSError as err:
+        raise ConfigError(f"run_dir: cannot read {path} ({err.strerror})") from None
 
 
 def warn_metrics(path: Path, problems: list[str], what: str) -> None:
@@ -170,8 +244,10 @@ def warn_metrics(path: Path, problems: list[str], what: str) -> None:
 
 def read_metrics(run_dir: Path) -> list[dict]:
     """The per-epoch metric lines of a run directory, in order; unreadable lines are reported
-    on stderr and skipped (:func:`parse_metrics`)."""
+    on stderr and skipped (:func:`parse_metrics`); none for a run without a metrics file yet."""
     path = Path(run_dir) / METRICS_FILE
+    if not path.exists() and not path.is_symlink():
+        return []
     valid, problems = parse_metrics(read_metrics_text(path))
     warn_metrics(path, problems, "skipped")
     return [entry for _, entry in valid]
@@ -259,6 +335,10 @@ def fresh_run_dir(path: str, field: str, what: str, command: str | None) -> Path
     held = "a phase-2 run" if (run_dir / SKILLS_FILE).exists() else "a run"
     if holds_a_run(run_dir):
         another = f"choose another --{field.replace('_', '-')}"
+        exported = _export_source(run_dir)
+        if exported is not None:
+            raise ConfigError(f"{field}: {str(run_dir)!r} holds a skills export of {exported}, which phase 2, eval, "
+                              f"plot and render read and nothing trains further; {another}")
         if command is None:
             raise ConfigError(f"{field}: {str(run_dir)!r} already holds {held}; {another}")
         resume = f"{command} --resume" if held == what else "mjx-emp resume"
@@ -268,6 +348,16 @@ def fresh_run_dir(path: str, field: str, what: str, command: str | None) -> Path
     if (run_dir / CONFIG_FILE).exists() or (run_dir / CHECKPOINT_SUBDIR).exists():
         print(f"note: {run_dir} holds {held} stopped before its first checkpoint; it is started anew", flush=True)
     return run_dir
+
+
+def _export_source(run_dir: Path) -> str | None:
+    """The run a skills export was taken from, as its provenance.json says; None for a run."""
+    try:
+        record = json.loads((Path(run_dir) / PROVENANCE_FILE).read_text())
+    except (OSError, ValueError):
+        return None
+    source = record.get(EXPORT_OF) if isinstance(record, dict) else None
+    return str(source) if source else None
 
 
 def directory_megabytes(path: Path) -> float:

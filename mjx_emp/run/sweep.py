@@ -503,7 +503,8 @@ def sweep(spec_path: str, runs: str = "", results: str = "", workers: int = 1, e
         raise ConfigError(f"workers: must be >= 1; got {workers}")
     spec = load_spec(spec_path)
     runs_root = Path(runs or spec.runs)
-    results_path = Path(results or Path(RESULTS_DIR) / f"{spec.name}.jsonl")
+    results_path = store.output_target(Path(results or Path(RESULTS_DIR) / f"{spec.name}.jsonl"), "results",
+                                       make_folder=not results)
     command = shlex.join(["mjx-emp", "sweep", spec_path, "--runs", str(runs_root), "--results", str(results_path)])
     todo = plan(spec, runs_root, results_path, command)
     report(f"sweep {spec.name}: {len(spec.rows)} rows, {todo.total} runs; {len(todo.current)} evaluated already, "

@@ -18,8 +18,8 @@ from mjx_emp.run.store import (
     PHASE2_SUBDIR,
     read_metrics,
     read_run_config,
+    replace_file,
     run_skill_kind,
-    writing,
 )
 
 
@@ -33,10 +33,7 @@ def _pyplot():
 
 
 def _save(fig, path: Path) -> Path:
-    path = Path(path)
-    with writing(path):
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fig.savefig(path, dpi=100)
+    path = replace_file(Path(path), lambda temporary: fig.savefig(temporary, dpi=100))
     fig.clf()
     _pyplot().close(fig)
     return path

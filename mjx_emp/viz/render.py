@@ -246,12 +246,10 @@ def write_video(frames: np.ndarray, path: Path, fps: float) -> Path:
     path = Path(path)
     check_video(path, frames.shape[2], frames.shape[1])
     suffix = path.suffix.lower()
-    from mjx_emp.run.store import writing
+    from mjx_emp.run.store import replace_file
 
-    with writing(path, chosen=True):
-        path.parent.mkdir(parents=True, exist_ok=True)
-        (_write_mp4 if suffix == ".mp4" else _write_gif)(frames, path, fps)
-    return path
+    write = _write_mp4 if suffix == ".mp4" else _write_gif
+    return replace_file(path, lambda temporary: write(frames, temporary, fps), chosen=True)
 
 
 def _write_mp4(frames: np.ndarray, path: Path, fps: float) -> None:

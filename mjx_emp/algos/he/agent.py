@@ -28,7 +28,12 @@ import optax
 from flax import struct
 
 from mjx_emp import gce
-from mjx_emp.algos.he.config import GcrlConfig, HEConfig, check_gcrl_config, check_train_config
+from mjx_emp.algos.he.config import (
+    GcrlConfig,
+    HEConfig,
+    check_gcrl_config,
+    check_train_config,
+)
 from mjx_emp.algos.he.networks import HENetworks
 from mjx_emp.checks import compile_identity
 from mjx_emp.counters import StepCounter

@@ -7,7 +7,15 @@ from __future__ import annotations
 
 import dataclasses
 
-from mjx_emp.checks import check_capacity, check_counts, check_finite, check_learning, check_levels, check_shards
+from mjx_emp.checks import (
+    check_bounds,
+    check_capacity,
+    check_counts,
+    check_finite,
+    check_learning,
+    check_levels,
+    check_shards,
+)
 from mjx_emp.envs.registry import DOMAINS, check_physics, tiltable
 from mjx_emp.errors import ConfigError
 
@@ -224,6 +232,7 @@ def check_train_config(cfg: HEConfig, positive: tuple[str, ...] = _POSITIVE) -> 
         raise ConfigError(f"reset_outcome: {cfg.reset_outcome!r} needs learn_from_resets=True (without it the "
                           "episodes a reset cut short are not scored)")
     check_finite(cfg)
+    check_bounds(cfg)
     # One step of every environment; a collection chunk larger than the ring keeps its newest rows.
     check_capacity(cfg, "replay_capacity", {"a minibatch (batch_size)": cfg.batch_size,
                                             "one step of every environment (num_envs)": cfg.num_envs})

@@ -33,7 +33,13 @@ from mjx_emp.envs.env import Env, EnvState, make_env
 from mjx_emp.learners.common import all_finite
 from mjx_emp.learners.sac import SAC, SACBatch, SACInfo, SACLearner
 from mjx_emp.metrics import epoch_header
-from mjx_emp.replay import ReplayBuffer, flatten_rows, replay_init, replay_insert, replay_sample
+from mjx_emp.replay import (
+    ReplayBuffer,
+    flatten_rows,
+    replay_init,
+    replay_insert,
+    replay_sample,
+)
 from mjx_emp.rollout.flat import FlatState, flat_init, flat_rollout
 from mjx_emp.shards import ShardAxes, mean_gradients, shard_all, shard_mean, shard_sum
 from mjx_emp.tracing import count_trace

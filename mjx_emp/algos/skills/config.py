@@ -12,7 +12,14 @@ from __future__ import annotations
 
 import dataclasses
 
-from mjx_emp.checks import check_capacity, check_counts, check_finite, check_learning, check_shards
+from mjx_emp.checks import (
+    check_bounds,
+    check_capacity,
+    check_counts,
+    check_finite,
+    check_learning,
+    check_shards,
+)
 from mjx_emp.envs.registry import DOMAINS, check_physics
 from mjx_emp.errors import ConfigError
 
@@ -140,3 +147,4 @@ def check_skill_config(cfg: SkillConfig) -> None:
             if not 0 < getattr(cfg, name) < float("inf"):
                 raise ConfigError(f"{name}: must be a finite number > 0; got {getattr(cfg, name)}")
     check_finite(cfg)
+    check_bounds(cfg)

@@ -18,7 +18,12 @@ import optax
 from flax import struct
 
 from mjx_emp.algos.skills import objectives as obj
-from mjx_emp.algos.skills.config import DadsConfig, DiaynConfig, HidioConfig, MetraConfig
+from mjx_emp.algos.skills.config import (
+    DadsConfig,
+    DiaynConfig,
+    HidioConfig,
+    MetraConfig,
+)
 from mjx_emp.envs.env import Env
 from mjx_emp.nets import MLP
 

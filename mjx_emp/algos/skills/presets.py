@@ -18,7 +18,13 @@ from __future__ import annotations
 
 import dataclasses
 
-from mjx_emp.algos.skills.config import DadsConfig, DiaynConfig, HidioConfig, MetraConfig, SkillConfig
+from mjx_emp.algos.skills.config import (
+    DadsConfig,
+    DiaynConfig,
+    HidioConfig,
+    MetraConfig,
+    SkillConfig,
+)
 
 _POINT_MASS = dict(env="point_mass", skill_dim=2, n=10, epochs=200, num_envs=16, collect_steps=10, iterations=10,
                    grad_steps=25, batch_size=256, replay_capacity=100_000, min_replay=1_000, hidden=(256, 256))
