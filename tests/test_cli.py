@@ -45,7 +45,7 @@ def cli(*args: str) -> subprocess.CompletedProcess:
          "invalid configuration: keep_checkpoints: must be >= 1; got 0"),
         (["train", "--resume", "/nonexistent/mjx-emp-run"],
          "invalid configuration: resume: '/nonexistent/mjx-emp-run' has no config.json; is it a run directory?"),
-        (["render", "/nonexistent/mjx-emp-run", "--steps", "0"], "invalid configuration: steps: must be >= 1; got 0"),
+        (["render", "/nonexistent/mjx-emp-run", "--steps", "0"], "invalid configuration: steps: must be in [1, 100000]; got 0"),
         (["render", "/nonexistent/mjx-emp-run"],
          "invalid configuration: run_dir: '/nonexistent/mjx-emp-run' has no config.json; is it a run directory?"),
         (["train", "point-mass-k1", "--num-devices", "-1"],
@@ -57,7 +57,7 @@ def cli(*args: str) -> subprocess.CompletedProcess:
         (["phase2", "reach-point-mas", "runs/x"], "preset: 'reach-point-mas' is unknown (mjx-emp phase2 PRESET "
                                                   "RUN_DIR); did you mean reach-point-mass"),
         (["eval", "/nonexistent/mjx-emp-run", "--episodes", "0"],
-         "invalid configuration: episodes: must be >= 1; got 0"),
+         "invalid configuration: episodes: must be in [1, 10000000]; got 0"),
         (["eval", "/nonexistent/mjx-emp-run"],
          "invalid configuration: run_dirs: '/nonexistent/mjx-emp-run' has no config.json; is it a run directory?"),
     ],
@@ -116,7 +116,8 @@ def test_resume_forms_are_one_command(tmp_path):
     from mjx_emp.cli import canonical_args
 
     assert canonical_args(["train", "--resume", "r", "--epochs", "3"]) == ["resume", "r", "--epochs", "3"]
-    assert canonical_args(["phase2", "--epochs", "3", "--resume=r/phase2"]) == ["resume", "r/phase2", "--epochs", "3"]
+    assert canonical_args(["phase2", "--epochs", "3", "--resume=r/phase2"]) == ["resume", "r/phase2", "--epochs", "3",
+                                                                                 "--phase2"]
     assert canonical_args(["train", "point-mass-k1", "--epochs", "3"]) == ["train", "point-mass-k1", "--epochs", "3"]
 
 

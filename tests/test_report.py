@@ -103,6 +103,7 @@ def test_the_chart_shows_each_groups_mean_over_its_seeds(tmp_path):
             make_row("he-k1", 1, curve=([0, 100, 200], [0.0, 3.0, 4.0])),
             make_row("gcrl-k1", 0, curve=([0, 100], [0.5, None])),
             make_row("diayn", 0)]
+    (tmp_path / "figs").mkdir()
     chart = seed_band_figure(rows, "top_volume", out=tmp_path / "figs" / "volume.png")
     assert chart.path == tmp_path / "figs" / "volume.png"
     assert chart.path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

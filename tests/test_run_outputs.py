@@ -239,7 +239,8 @@ def test_an_export_keeps_the_skills_without_the_replay_and_phase_2_reads_it(trai
     refused = run_cli("resume", str(out))
     assert refused.returncode == 2 and "is a skills export" in refused.stderr and "replay" in refused.stderr
     again = run_cli("export", str(trained_run), "--out", str(out))
-    assert again.returncode == 2 and f"out: {str(out)!r} already holds a run; choose another --out" in again.stderr
+    assert again.returncode == 2 and f"out: {str(out)!r} holds a skills export of {trained_run}" in again.stderr
+    assert "choose another --out" in again.stderr
     assert "resume" not in again.stderr  # an export is written once; nothing can continue it
     from mjx_emp import api
 

@@ -7,7 +7,13 @@ from __future__ import annotations
 
 import dataclasses
 
-from mjx_emp.checks import check_bounds, check_capacity, check_counts, check_finite, check_learning
+from mjx_emp.checks import (
+    check_bounds,
+    check_capacity,
+    check_counts,
+    check_finite,
+    check_learning,
+)
 from mjx_emp.errors import ConfigError
 
 

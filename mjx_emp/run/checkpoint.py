@@ -283,6 +283,15 @@ def stored_epoch(state: Any) -> int | None:
     return None if epoch is None else int(np.asarray(epoch).reshape(-1)[0])
 
 
+def short_reason(err: BaseException, most: int = 300) -> str:
+    """An error's message on one line, without tensorstore's spec dump, cut at a word (with an
+    ellipsis) only when it is longer than ``most`` characters."""
+    text = " ".join(str(err).split(" [tensorstore_spec=")[0].split())
+    if len(text) <= most:
+        return text
+    return text[:most].rsplit(" ", 1)[0] + " ..."
+
+
 RETENTION_RETRIES = 20
 """How often a reader starts again after the checkpoint it read was removed under it."""
 
@@ -364,7 +373,7 @@ class Checkpoints:
         except Exception as err:  # OSError, or tensorstore's ValueError (RESOURCE_EXHAUSTED) for a full disk
             kept = sorted(self.manager.all_steps()) if self.manager else []
             newest = f"epoch {kept[-1]}" if kept else "none"
-            reason = str(err).split(" [tensorstore_spec=")[0][-300:]
+            reason = short_reason(err)
             raise CheckpointWriteError(
                 f"writing a checkpoint to {self.directory} failed ({type(err).__name__}: {reason}); the newest "
                 f"complete checkpoint is {newest}, left intact: free space, then continue with "

@@ -22,7 +22,7 @@ from mjx_emp.metrics import coverage_cells
 from mjx_emp.phase2.config import Phase2Config
 from mjx_emp.rollout.hierarchy import jit_init_rollout, jit_rollout
 from mjx_emp.run import jobs, store
-from mjx_emp.run.provenance import provenance, read_run_record
+from mjx_emp.run.provenance import provenance
 from mjx_emp.run.rows import ROW_SCHEMA
 
 COVERAGE_SKILLS = 48
@@ -188,7 +188,7 @@ def evaluation_row(run_dir: Path, seed: int = 0, episodes: int = 400, command: s
     belongs to (None for a run evaluated on its own)."""
     run_dir = Path(run_dir)
     cfg = store.read_run_config(run_dir, "run_dir")
-    trained = read_run_record(run_dir)
+    trained = store.read_run_record(run_dir)
     figures = run_figures(run_dir, jax.random.key(seed), episodes)
     return {
         "schema": ROW_SCHEMA, "spec": spec, "row": row, "seed": int(cfg.seed), "run_dir": str(run_dir),
@@ -205,7 +205,7 @@ def evaluation_row(run_dir: Path, seed: int = 0, episodes: int = 400, command: s
 def _phase2_preset(run_dir: Path) -> str | None:
     """The phase-2 preset RUN_DIR/phase2 was started from, where its provenance says."""
     phase2_dir = run_dir / store.PHASE2_SUBDIR
-    return read_run_record(phase2_dir).get("preset") if (phase2_dir / store.CONFIG_FILE).exists() else None
+    return store.read_run_record(phase2_dir).get("preset") if (phase2_dir / store.CONFIG_FILE).exists() else None
 
 
 def _phase2_config(run_dir: Path) -> dict | None:

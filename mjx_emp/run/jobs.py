@@ -31,7 +31,7 @@ from mjx_emp.commands import (
 from mjx_emp.errors import ConfigError, RenderError
 from mjx_emp.phase2.config import Phase2Config
 from mjx_emp.run.loop import env_steps_of, train_to_the_end
-from mjx_emp.run.provenance import EXPORT_OF, read_run_record, write_run_record
+from mjx_emp.run.provenance import EXPORT_OF
 from mjx_emp.run.store import (
     CONFIG_FILE,
     METRICS_FILE,
@@ -43,9 +43,11 @@ from mjx_emp.run.store import (
     keep_metrics_through,
     newest_checkpoint_on_disk,
     read_run_config,
+    read_run_record,
     run_lock,
     write_atomically,
     write_config,
+    write_run_record,
 )
 from mjx_emp.run.tracking import Film, Trackers, open_trackers
 

@@ -163,10 +163,12 @@ class _SignalStop:
 
 
 def _metrics_log(run_dir: Path):
-    """RUN_DIR/metrics.jsonl opened for appending (a failure to open it names the run's newest
-    intact checkpoint, :func:`~mjx_emp.run.store.writing`)."""
+    """RUN_DIR/metrics.jsonl opened for appending, unbuffered: each line goes to the file in one
+    write, so a write that fails (a full disk) leaves nothing buffered for closing the file to
+    fail on again (a failure to open it names the run's newest intact checkpoint,
+    :func:`~mjx_emp.run.store.writing`)."""
     with writing(run_dir / METRICS_FILE, run_dir):
-        return open(run_dir / METRICS_FILE, "a")
+        return open(run_dir / METRICS_FILE, "ab", buffering=0)
 
 
 def _train_members(program, state, members, report, split, gather_to_host, lead: bool, epochs: int,
@@ -174,7 +176,7 @@ def _train_members(program, state, members, report, split, gather_to_host, lead:
     import jax
 
     with contextlib.ExitStack() as stack:
-        logs = [stack.enter_context(_metrics_log(member.run_dir) if lead else open(os.devnull, "w"))
+        logs = [stack.enter_context(_metrics_log(member.run_dir) if lead else open(os.devnull, "wb"))
                 for member in members]
         budgets = [member.trainer.cfg.max_env_steps for member in members]
         while True:
@@ -205,7 +207,7 @@ def _train_members(program, state, members, report, split, gather_to_host, lead:
                     metrics = member.trainer.metrics(member_state, member_stats, seconds)
                     metrics["checkpoint_blocked_s"] = save_seconds  # the write itself continues in the background
                     with writing(member.run_dir / METRICS_FILE, member.run_dir):
-                        log.write(json.dumps(metrics) + "\n")
+                        log.write((json.dumps(metrics) + "\n").encode())
                         log.flush()
                     if member is members[0] and lead:
                         report(metrics)

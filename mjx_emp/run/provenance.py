@@ -106,24 +106,3 @@ def overrides_of(base: Any, cfg: Any) -> dict[str, Any]:
         return {}
     theirs, ours = dataclasses.asdict(base), dataclasses.asdict(cfg)
     return json.loads(json.dumps({name: value for name, value in ours.items() if theirs.get(name) != value}))
-
-
-def write_run_record(run_dir: Path, record: dict[str, Any]) -> None:
-    """Keep ``record`` as RUN_DIR/provenance.json (atomically; the run's writer calls it once, when
-    the run is made)."""
-    from mjx_emp.run.store import write_atomically
-
-    write_atomically(Path(run_dir) / PROVENANCE_FILE, json.dumps(record, indent=1), Path(run_dir))
-
-
-def read_run_record(run_dir: Path) -> dict[str, Any]:
-    """A run's ``provenance.json``, or a record of unknowns for a run started without one."""
-    path = Path(run_dir) / PROVENANCE_FILE
-    try:
-        record = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError):
-        record = None
-    if not isinstance(record, dict):
-        return {"preset": UNKNOWN, "overrides": UNKNOWN, "commit": UNKNOWN, "dirty": UNKNOWN, "versions": UNKNOWN,
-                "machine": UNKNOWN, "command": UNKNOWN, "time": UNKNOWN}
-    return record

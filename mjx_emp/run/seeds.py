@@ -21,7 +21,7 @@ import jax.numpy as jnp
 from mjx_emp.algos.registry import algorithm_of, make_agent
 from mjx_emp.commands import TrainExperiment
 from mjx_emp.run import loop, store
-from mjx_emp.run.provenance import read_run_record, run_record, write_run_record
+from mjx_emp.run.provenance import run_record
 
 
 @dataclasses.dataclass(frozen=True)
@@ -81,7 +81,7 @@ def train_seeds(exp: TrainExperiment, record: dict | None = None) -> Any:
         for run_dir in dirs:
             locks.enter_context(store.run_lock(run_dir, "run_dir"))
             group = {"seed_group": [str(d) for d in dirs]}  # a resume continues them together (resume_seeds)
-            write_run_record(run_dir, {**(record or run_record(None, {})), **group})
+            store.write_run_record(run_dir, {**(record or run_record(None, {})), **group})
         return _train_group(exp, algorithm, dirs)
 
 
@@ -142,5 +142,5 @@ def resume_seeds(dirs: list[Path], configs: list[Any], keep_checkpoints: int = 3
 def seed_group_of(run_dir: Path) -> list[Path]:
     """The run directories trained in one program with ``run_dir`` (itself included; just itself
     for a run trained alone), as its provenance records them."""
-    group = read_run_record(Path(run_dir)).get("seed_group")
+    group = store.read_run_record(Path(run_dir)).get("seed_group")
     return [Path(d) for d in group] if isinstance(group, list) and len(group) > 1 else [Path(run_dir)]

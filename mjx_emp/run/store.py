@@ -19,6 +19,7 @@ import tempfile
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 from mjx_emp.algos.registry import (
     GOAL_SPACES,
@@ -30,7 +31,7 @@ from mjx_emp.algos.registry import (
 from mjx_emp.checks import config_from_dict
 from mjx_emp.errors import ConfigError, WriteError
 from mjx_emp.phase2.config import Phase2Config
-from mjx_emp.run.provenance import EXPORT_OF, PROVENANCE_FILE
+from mjx_emp.run.provenance import EXPORT_OF, PROVENANCE_FILE, UNKNOWN
 
 CONFIG_FILE = "config.json"
 
@@ -350,13 +351,28 @@ def fresh_run_dir(path: str, field: str, what: str, command: str | None) -> Path
     return run_dir
 
 
-def _export_source(run_dir: Path) -> str | None:
-    """The run a skills export was taken from, as its provenance.json says; None for a run."""
+def write_run_record(run_dir: Path, record: dict) -> None:
+    """Keep ``record`` (how a run was asked for, :func:`mjx_emp.run.provenance.run_record`) as
+    RUN_DIR/provenance.json; the run's writer calls it once, when the run is made."""
+    write_atomically(Path(run_dir) / PROVENANCE_FILE, json.dumps(record, indent=1), Path(run_dir))
+
+
+def read_run_record(run_dir: Path) -> dict[str, Any]:
+    """A run's ``provenance.json``, or a record of unknowns for a run started without one."""
+    path = Path(run_dir) / PROVENANCE_FILE
     try:
-        record = json.loads((Path(run_dir) / PROVENANCE_FILE).read_text())
-    except (OSError, ValueError):
-        return None
-    source = record.get(EXPORT_OF) if isinstance(record, dict) else None
+        record = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError):
+        record = None
+    if not isinstance(record, dict):
+        return {"preset": UNKNOWN, "overrides": UNKNOWN, "commit": UNKNOWN, "dirty": UNKNOWN, "versions": UNKNOWN,
+                "machine": UNKNOWN, "command": UNKNOWN, "time": UNKNOWN}
+    return record
+
+
+def _export_source(run_dir: Path) -> str | None:
+    """The run a skills export was taken from, as its provenance says; None for a run."""
+    source = read_run_record(run_dir).get(EXPORT_OF)
     return str(source) if source else None
 
 
