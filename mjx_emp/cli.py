@@ -557,21 +557,36 @@ def main_guarded(command: Callable, exp) -> None:
     try:
         command(exp)
     except Interrupted as stop:
-        print(f"mjx-emp: {stop}", file=sys.stderr)
+        say(str(stop))
         sys.exit(128 + stop.signum)
     except WriteError as err:
-        print(f"mjx-emp: write failed: {err}", file=sys.stderr)
+        say(f"write failed: {err}")
         sys.exit(err.exit_code)
     except tuple(kind for kind, _, _ in failures) as err:
         what, code = next((what, code) for kind, what, code in failures if isinstance(err, kind))
-        print(f"mjx-emp: {what}: {err}", file=sys.stderr)
+        say(f"{what}: {err}")
         sys.exit(code)
     except Exception as err:  # XLA's out-of-memory error is explained; anything else is a bug to report
         explanation = explain_out_of_memory(err)
         if explanation is None:
             raise
-        print(f"mjx-emp: {explanation}", file=sys.stderr)
+        say(explanation)
         sys.exit(1)
+
+
+def say(message: str) -> None:
+    """A failure's one line on stderr (whitespace and line breaks inside it folded)."""
+    print(f"mjx-emp: {' '.join(message.split())}", file=sys.stderr, flush=True)
+
+
+def run_folder(exp: Any) -> Path | None:
+    """The run directory a command works in, where its libraries' messages are kept; None if it names none."""
+    for name in ("resume", "run_dir", "out"):
+        value = getattr(exp, name, None)
+        if isinstance(value, str) and value and Path(value).is_dir():
+            return Path(value)
+    dirs = getattr(exp, "run_dirs", ())
+    return Path(dirs[0]) if dirs and Path(dirs[0]).is_dir() else None
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -582,9 +597,18 @@ def main(argv: list[str] | None = None) -> None:
     (any command) compiles afresh. Bad input exits 2 naming the field (:func:`main_guarded`).
     """
     argv = use_compile_cache(sys.argv[1:] if argv is None else list(argv))
+    from mjx_emp.run.noise import quiet_libraries
+
+    noise = quiet_libraries()  # orbax's thread tracebacks and asyncio's exit noise go to a log file
 
     def parse_and_run(args: list[str]) -> None:
         command, exp = parse(canonical_args(args))  # imports no mujoco
+        try:
+            run(command, exp, args)
+        finally:
+            noise.write(run_folder(exp))  # RUN_DIR/library.log, for whoever debugs the libraries
+
+    def run(command, exp, args: list[str]) -> None:
         tracking = getattr(exp, "tracking", None)
         if args[:1] == ["render"]:
             from mjx_emp.viz.render import configure_headless_gl

@@ -7,7 +7,9 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import shutil
 import stat
+import subprocess
 from pathlib import Path
 
 import pytest
@@ -142,3 +144,60 @@ def test_a_seed_of_a_group_resumed_alone_is_told_and_the_group_resumes_as_one(tm
     jobs.resume(ResumeExperiment(resume=str(tmp_path / "g-s1"), epochs=2, group=True))
     assert "as one program" in capsys.readouterr().out
     assert [line["epoch"] for line in store.read_metrics(tmp_path / "g-s1")] == [1, 2]
+
+
+@pytest.fixture
+def tmpfs(tmp_path):
+    """Mount a small tmpfs of the size asked for (skipped where this machine cannot mount one);
+    unmounted afterwards."""
+    mounts = []
+
+    def mount(size: str) -> Path:
+        point = tmp_path / f"tmpfs-{len(mounts)}"
+        point.mkdir()
+        if subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(point)],
+                          capture_output=True).returncode:
+            pytest.skip("cannot mount a tmpfs here (needs root or a user namespace)")
+        mounts.append(point)
+        return point
+
+    yield mount
+    for point in mounts:
+        subprocess.run(["umount", "-l", str(point)], capture_output=True)
+
+
+FULL_DISK_RUN = ["point-mass-k1", "--num-envs", "8", "--hidden", "32", "32", "--batch-size", "32",
+                 "--gc-iterations", "2", "--gc-grad-steps", "20", "--replay-capacity", "30000", "--start-chain", "2"]
+
+
+def test_every_command_on_a_full_disk_says_so_in_one_line_and_loses_nothing(tmpfs, run_dir):
+    """A run trained until its disk fills, then every command that writes, on that full disk:
+    each exits non-zero with one line (no orbax thread tracebacks, no asyncio noise), and the
+    newest checkpoint the message names still restores."""
+    disk = tmpfs("400k")
+    full = disk / "run"
+    trained = run_cli("train", *FULL_DISK_RUN, "--epochs", "50", "--run-dir", str(full))
+    line = one_line(trained.stderr)
+    assert trained.returncode == 1 and "No space left on device" in line and "newest complete checkpoint" in line
+    newest = jobs.load_run(full)[1]  # the newest checkpoint left restores
+    for command in (("resume", str(full), "--epochs", "60"), ("phase2", str(full)),
+                    ("export", str(full), "--out", str(disk / "export")),
+                    ("eval", str(run_dir), "--out", str(disk / "eval.json")),
+                    ("render", str(run_dir), "--steps", "5", "--out", str(disk / "v.gif"))):
+        result = run_cli(*command)
+        assert result.returncode in (1, 2, 3), (command, result.stderr[-2000:])
+        one_line(result.stderr)
+    assert jobs.load_run(full)[1] == newest  # nothing the commands did cost the run its checkpoint
+
+
+def test_every_command_on_a_read_only_disk_says_so_in_one_line(tmpfs, run_dir):
+    disk = tmpfs("8m")
+    copy = disk / "run"
+    shutil.copytree(run_dir, copy, ignore=shutil.ignore_patterns(".lock"))
+    subprocess.run(["mount", "-o", "remount,ro", str(disk)], check=True)
+    for command in (("resume", str(copy), "--epochs", "3"), ("phase2", str(copy)), ("eval", str(copy)),
+                    ("export", str(copy), "--out", str(disk / "export")), ("render", str(copy), "--steps", "5"),
+                    ("plot", str(copy))):
+        result = run_cli(*command)
+        assert result.returncode in (1, 2, 3), (command, result.stderr[-2000:])
+        one_line(result.stderr)

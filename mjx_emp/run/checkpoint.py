@@ -17,6 +17,8 @@ import contextlib
 import dataclasses
 import json
 import logging
+import os
+import re
 import time
 import zlib
 from collections.abc import Iterator
@@ -287,9 +289,11 @@ def short_reason(err: BaseException, most: int = 300) -> str:
     """An error's message on one line, without tensorstore's spec dump, cut at a word (with an
     ellipsis) only when it is longer than ``most`` characters."""
     text = " ".join(str(err).split(" [tensorstore_spec=")[0].split())
-    if len(text) <= most:
-        return text
-    return text[:most].rsplit(" ", 1)[0] + " ..."
+    code = re.search(r"os_error_code='?(\d+)", text)
+    cause = f"{os.strerror(int(code.group(1)))}: " if code else ""  # the reason a user can act on, first
+    if len(text) > most:
+        text = text[:most].rsplit(" ", 1)[0] + " ..."
+    return cause + text
 
 
 RETENTION_RETRIES = 20

@@ -298,33 +298,30 @@ def run_lock(run_dir: Path, field: str) -> Iterator[None]:
         yield
         return
     path = Path(run_dir) / LOCK_FILE
-    handle = open(path, "a+")
+    with writing(path, Path(run_dir)):  # a full or read-only disk: one line naming the run's newest checkpoint
+        lock = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
     try:
         try:
-            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
-            handle.seek(0)
-            holder = handle.read().strip() or "unknown"
+            holder = os.pread(lock, 256, 0).decode(errors="replace").strip() or "unknown"
             raise ConfigError(f"{field}: {str(run_dir)!r} is in use by process {holder} (lock {path}); wait for it "
                               f"to end or stop it") from None
-        handle.seek(0)
-        left = handle.read().strip()
+        left = os.pread(lock, 256, 0).decode(errors="replace").strip()
         if left:
             print(f"note: taking over the lock of {run_dir} left by process {left}, which no longer holds it",
                   flush=True)
-        handle.seek(0)
-        handle.truncate()
-        handle.write(f"{os.getpid()} on {socket.gethostname()}\n")
-        handle.flush()
+        with writing(path, Path(run_dir)):
+            os.ftruncate(lock, 0)
+            os.pwrite(lock, f"{os.getpid()} on {socket.gethostname()}\n".encode(), 0)
         try:
             yield
         finally:
-            handle.seek(0)
-            handle.truncate()  # an empty lock file: released on purpose, nothing to take over
-            handle.flush()
-            fcntl.flock(handle, fcntl.LOCK_UN)
+            with contextlib.suppress(OSError):  # a second failure while letting go never hides the first
+                os.ftruncate(lock, 0)  # an empty lock file: released on purpose, nothing to take over
+            fcntl.flock(lock, fcntl.LOCK_UN)
     finally:
-        handle.close()
+        os.close(lock)
 
 
 def fresh_run_dir(path: str, field: str, what: str, command: str | None) -> Path:
