@@ -201,3 +201,18 @@ def test_every_command_on_a_read_only_disk_says_so_in_one_line(tmpfs, run_dir):
         result = run_cli(*command)
         assert result.returncode in (1, 2, 3), (command, result.stderr[-2000:])
         one_line(result.stderr)
+
+
+def test_a_gl_backend_whose_library_is_missing_is_one_line(run_dir, tmp_path):
+    import ctypes.util
+
+    if ctypes.util.find_library("OSMesa"):
+        pytest.skip("OSMesa is installed here")
+    result = run_cli("render", str(run_dir), "--steps", "2", "--out", str(tmp_path / "v.gif"),
+                     env={**os.environ, "MUJOCO_GL": "osmesa"})
+    assert result.returncode == 3 and "OSMesa library is not installed" in one_line(result.stderr)
+
+
+def test_export_of_an_epoch_it_lacks_names_the_flag(run_dir, tmp_path):
+    result = run_cli("export", str(run_dir), "--epoch", "7", "--out", str(tmp_path / "e"))
+    assert result.returncode == 2 and one_line(result.stderr).startswith("mjx-emp: invalid configuration: epoch: ")

@@ -46,6 +46,19 @@ def configure_headless_gl() -> None:
                           f"allowed values: {list(GL_BACKENDS)}")
     if backend == "egl":
         os.environ.setdefault("EGL_PLATFORM", "surfaceless")
+    library = GL_LIBRARIES.get(backend)
+    if library is not None:
+        import ctypes.util
+
+        if not ctypes.util.find_library(library):  # import mujoco would fail deep inside PyOpenGL
+            raise RenderError(f"MUJOCO_GL={backend}: the {library} library is not installed; install it (Debian: "
+                              f"{GL_PACKAGES[backend]}) or set MUJOCO_GL to another of {list(GL_BACKENDS)}")
+
+
+GL_LIBRARIES = {"egl": "EGL", "osmesa": "OSMesa"}
+"""The shared library each headless backend loads."""
+GL_PACKAGES = {"egl": "libegl1", "osmesa": "libosmesa6"}
+"""The Debian package that provides it."""
 
 
 def prefer_headless_gl() -> None:
