@@ -260,6 +260,7 @@ def test_second_call_does_not_recompile():
     state = jit_init_rollout(h, (None, None), START, None, jax.random.key(0), 8)
     state, _, _, _ = jit_rollout(h, (None, None), START, None, state, 20)
     after_first = len(traces)
+    assert after_first >= 1, "the counting policy was never traced: the test would pass whatever happens"
     state, _, _, _ = jit_rollout(h, (None, None), START, None, state, 20)
     state = jit_init_rollout(h, (None, None), START, None, jax.random.key(1), 8)
     state, _, _, _ = jit_rollout(h, (None, None), START, None, state, 20)
