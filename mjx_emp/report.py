@@ -500,11 +500,12 @@ def reproduce_line(spec_path: str, options: str = "") -> str:
 
 def report_spec(spec_path: str, results: str = "", metrics: Sequence[str] = (), baseline: str = "",
                 figure: str = "", curve: str = "top_volume", into: str = "", block: str = "",
-                reps: int = DEFAULT_REPS) -> str:
+                reps: int = DEFAULT_REPS, write: bool = True) -> str:
     """A spec's report as Markdown: its stored rows' table (:func:`markdown_table`) and the command
     that reproduces it; with ``figure``, a seed-band PNG of ``curve`` too (linked under the
     table); with ``into``, the text replaces block ``block`` (default: the spec's name) of that
-    Markdown file. The spec's ``[report]`` table may name ``metrics`` and ``baseline``."""
+    Markdown file (``write`` False: the text only, as a check of a committed block makes it). The
+    spec's ``[report]`` table may name ``metrics`` and ``baseline``."""
     from mjx_emp.run.rows import RESULTS_DIR
     from mjx_emp.run.store import output_target
     from mjx_emp.run.sweep import load_spec
@@ -512,7 +513,7 @@ def report_spec(spec_path: str, results: str = "", metrics: Sequence[str] = (), 
     if reps < 1:
         raise ConfigError(f"reps: must be >= 1; got {reps}")
     for path, field in ((into, "into"), (figure, "figure")):
-        if path:
+        if path and write:
             output_target(Path(path), field)  # before anything is read: a FIFO would block, a device be lost
     spec = load_spec(spec_path)
     results_path = Path(results or Path(RESULTS_DIR) / f"{spec.name}.jsonl")
@@ -536,6 +537,6 @@ def report_spec(spec_path: str, results: str = "", metrics: Sequence[str] = (), 
         parts.append(f"![{spec.name}: {curve_heading(curve)}]({link})")
     parts.append(reproduce_line(spec_path, options))
     text = "\n\n".join(parts)
-    if into:
+    if into and write:
         write_block(into, block or spec.name, text)
     return text

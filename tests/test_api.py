@@ -63,3 +63,16 @@ def test_every_algorithm_reports_in_one_schema():
     assert metra == {"epoch": 2, "env_steps": 10.0, "seconds": 1.0, "flip_resets": 1, "algorithm": "metra",
                      "levels": [{"level": 0, "critic_loss": 0.1, "dual_lambda": 3.0}]}
     assert set(he) == set(metra)
+
+
+def test_the_cli_and_its_help_load_no_jax():
+    """`import mjx_emp.cli`, `mjx-emp --help`, a command's --help, `presets` and a refused spec stay
+    free of JAX, mujoco, orbax, matplotlib and rliable: they answer at once."""
+    heavy = ("jax", "mujoco", "orbax", "matplotlib", "rliable")
+    code = ("import sys\nfrom mjx_emp import cli\n"
+            "for argv in (['--help'], ['sweep', '--help'], ['train', 'point-mass-k1', '--help'], ['presets']):\n"
+            "    try:\n        cli.main(argv)\n    except SystemExit:\n        pass\n"
+            f"print(sorted(name for name in {heavy!r} if name in sys.modules))")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.strip().splitlines()[-1] == "[]"
