@@ -19,7 +19,7 @@ from typing import Annotated, Any, Union
 import tyro
 
 from mjx_emp.algos.names import listing_lines
-from mjx_emp.algos.registry import LATENT_SKILLS, algorithm_of, all_presets
+from mjx_emp.algos.registry import all_presets
 from mjx_emp.algos.retired import RETIRED, Retired
 from mjx_emp.checks import check_levels
 from mjx_emp.commands import (
@@ -50,7 +50,6 @@ from mjx_emp.errors import (
 from mjx_emp.phase2.presets import PHASE2_PRESETS, PHASE2_RETIRED, phase2_preset_for
 from mjx_emp.run import jobs, store
 from mjx_emp.run.preflight import explain_out_of_memory
-from mjx_emp.tables import spread_text
 
 
 def validate_rollout(cfg: RolloutExperiment) -> None:
@@ -251,97 +250,20 @@ def check_eval(exp: EvalExperiment) -> None:
 
 
 def evaluate(exp: EvalExperiment) -> dict:
-    """Evaluate each run's newest checkpoint (:func:`mjx_emp.run.evaluate.evaluation_row`, the
-    evaluation `mjx-emp sweep` writes its rows with), aggregate over runs (mean, sample std,
-    standard error), print tables and write JSON: ``runs`` holds each run's row.
-
-    Goal-space algorithms: the phase-1 figures per level and the agent's coverage; flat skill
-    learners: coverage and posterior std. Both: the paper's phase-2 figure (mean minimum
-    distance to goal) for runs that have a phase-2 directory (RUN_DIR/phase2).
-    """
+    """`mjx-emp eval`: each run's evaluation row (:func:`mjx_emp.run.evaluate.evaluate_runs`, the
+    evaluation `mjx-emp sweep` writes its rows with), aggregated over runs, printed and written as
+    JSON (``runs`` holds the rows)."""
     check_eval(exp)
-    out = Path(exp.out or Path(exp.run_dirs[0]) / "eval.json")
-    from mjx_emp.metrics import aggregate_phase2
-    from mjx_emp.run.evaluate import evaluation_row
+    from mjx_emp.run.evaluate import evaluate_runs, evaluation_text
     from mjx_emp.run.provenance import command_line
 
-    algorithms = {algorithm.name: algorithm
-                  for algorithm in (algorithm_of(store.read_run_config(Path(d), "run_dirs")) for d in exp.run_dirs)}
-    if len(algorithms) > 1:
-        raise ConfigError(f"run_dirs: runs of one algorithm at a time (they are aggregated); got {sorted(algorithms)}")
-    latent = next(iter(algorithms.values())).skills == LATENT_SKILLS
-    rows = []
-    for index, run_dir in enumerate(exp.run_dirs, 1):
-        print(f"evaluating {run_dir} ({index} of {len(exp.run_dirs)}) ...", flush=True)
-        rows.append(evaluation_row(Path(run_dir), exp.seed, exp.episodes, command_line(["mjx-emp", *sys.argv[1:]])))
-    runs = [row["figures"] for row in rows]
-    report = {"runs": rows, **(aggregate_skill_runs if latent else aggregate_goal_space_runs)(runs)}
-    with_phase2 = [r["phase2"] for r in runs if r.get("phase2") is not None]
-    if with_phase2:
-        report["phase2"] = aggregate_phase2(with_phase2)
+    out = Path(exp.out or Path(exp.run_dirs[0]) / "eval.json")
+    report = evaluate_runs([Path(d) for d in exp.run_dirs], exp.seed, exp.episodes,
+                           command_line(["mjx-emp", *sys.argv[1:]]))
     store.write_atomically(out, json.dumps(report, indent=1), chosen=bool(exp.out))
-    print(f"{len(runs)} run(s)" + ("" if len(runs) == 1 else "; mean ± sample std (se: standard error) over runs"))
-    (print_skill_report if latent else print_goal_space_report)(report, rows)
-    if with_phase2:
-        p2, first = report["phase2"], with_phase2[0]
-        print(f"phase 2 ({len(with_phase2)} run(s), {first['episodes']} episodes each, region {first['region']}, "
-              f"eps {first['eps']}): mean min distance to goal {spread_text(p2['min_distance'])}, "
-              f"success {spread_text(p2['success'])}"
-              + (f", ended early by a reset (a flip) {spread_text(p2['cut_short'])}" if "cut_short" in p2 else "")
-              + (f", mean min distance where no reset ended the episode {spread_text(p2['uncut_min_distance'])}"
-                 if "uncut_min_distance" in p2 else ""))
-        for policy, what in (("aimed", "subgoals aimed straight at each goal"),
-                             ("aimed_half", "subgoals aimed within the top box's central half"),
-                             ("random", "random subgoals")):
-            if policy in p2:  # the chaining diagnostic: the same goals without the learned policy
-                print(f"  the same goals with {what}: mean min distance {spread_text(p2[policy]['min_distance'])}, "
-                      f"success {spread_text(p2[policy]['success'])}")
-    else:
-        print("phase 2: no run has a phase-2 directory (train one with `mjx-emp phase2 RUN_DIR`)")
+    print(evaluation_text(report))
     print(f"wrote {out}")
     return report
-
-
-def aggregate_goal_space_runs(runs: list[dict]) -> dict:
-    """Per-level and agent figures of goal-space runs over runs."""
-    from mjx_emp.metrics import aggregate_agent, aggregate_runs
-
-    return {"levels": aggregate_runs(runs), **aggregate_agent(runs)}
-
-
-def aggregate_skill_runs(runs: list[dict]) -> dict:
-    """Coverage and (where the method has a posterior) its std over flat skill runs."""
-    from mjx_emp.metrics import mean_and_stderr
-
-    report = {"coverage_cells": mean_and_stderr([r["coverage_cells"] for r in runs])}
-    stds = [r["posterior_std"] for r in runs if r["posterior_std"] is not None]
-    if stds:
-        report["posterior_std"] = mean_and_stderr(stds)
-    return report
-
-
-def print_goal_space_report(report: dict, runs: list[dict]) -> None:
-    """The per-level table and the coverage line of goal-space runs."""
-    from mjx_emp.metrics import LEVEL_FIGURES
-    from mjx_emp.run.evaluate import COVERAGE_SKILLS
-
-    print("| level | goal-space volume | greedy success | final distance | success from s0 | success from "
-          "chained starts | cut short (flipped) |")
-    print("|---|---|---|---|---|---|---|")
-    for row in report["levels"]:
-        print(f"| {row['level']} | " + " | ".join(spread_text(row[name]) for name in LEVEL_FIGURES) + " |")
-    print(f"coverage ({COVERAGE_SKILLS} greedy top-level skills from the initial state, 1 m cells of goal space): "
-          f"{spread_text(report['coverage_cells'])} cells; top volume x greedy success {spread_text(report['volume_x_success'])}")
-
-
-def print_skill_report(report: dict, runs: list[dict]) -> None:
-    """The coverage and posterior lines of flat skill runs."""
-    from mjx_emp.run.evaluate import COVERAGE_SKILLS
-
-    print(f"{runs[0]['algorithm']}: coverage ({COVERAGE_SKILLS} greedy skills from the initial state, 1 m cells "
-          f"of goal space): {spread_text(report['coverage_cells'])} cells")
-    if "posterior_std" in report:
-        print(f"posterior mean std: {spread_text(report['posterior_std'])}")
 
 
 def with_phase2_preset(args: list[str]) -> list[str]:

@@ -220,3 +220,86 @@ def row_figures(row: dict) -> dict:
     """What two evaluations of one run must agree on: the row less its provenance (timing, the
     command, the machine)."""
     return {name: value for name, value in row.items() if name not in ("train", "evaluation")}
+
+
+def evaluate_runs(run_dirs: list[Path], seed: int = 0, episodes: int = 400, command: str | None = None) -> dict:
+    """Each run's :func:`evaluation_row` (``runs``) and their aggregate over runs as seeds (mean,
+    sample std, standard error): per level and for the agent (goal-space algorithms) or coverage
+    and posterior std (flat skill learners), and phase 2 where runs have one. Runs of one
+    algorithm at a time (they are aggregated)."""
+    from mjx_emp.metrics import aggregate_phase2
+
+    algorithms = {algorithm.name: algorithm
+                  for algorithm in (algorithm_of(store.read_run_config(Path(d), "run_dirs")) for d in run_dirs)}
+    if len(algorithms) > 1:
+        raise ConfigError(f"run_dirs: runs of one algorithm at a time (they are aggregated); got {sorted(algorithms)}")
+    rows = []
+    for index, run_dir in enumerate(run_dirs, 1):
+        print(f"evaluating {run_dir} ({index} of {len(run_dirs)}) ...", flush=True)
+        rows.append(evaluation_row(Path(run_dir), seed, episodes, command))
+    figures = [row["figures"] for row in rows]
+    latent = next(iter(algorithms.values())).skills != GOAL_SPACES
+    report = {"runs": rows, **(_aggregate_skill_runs if latent else _aggregate_goal_space_runs)(figures)}
+    with_phase2 = [f["phase2"] for f in figures if f.get("phase2") is not None]
+    if with_phase2:
+        report["phase2"] = aggregate_phase2(with_phase2)
+    return report
+
+
+def _aggregate_goal_space_runs(runs: list[dict]) -> dict:
+    from mjx_emp.metrics import aggregate_agent, aggregate_runs
+
+    return {"levels": aggregate_runs(runs), **aggregate_agent(runs)}
+
+
+def _aggregate_skill_runs(runs: list[dict]) -> dict:
+    from mjx_emp.metrics import mean_and_stderr
+
+    report = {"coverage_cells": mean_and_stderr([r["coverage_cells"] for r in runs])}
+    stds = [r["posterior_std"] for r in runs if r["posterior_std"] is not None]
+    if stds:
+        report["posterior_std"] = mean_and_stderr(stds)
+    return report
+
+
+PHASE2_POLICIES = (("aimed", "subgoals aimed straight at each goal"),
+                   ("aimed_half", "subgoals aimed within the top box's central half"),
+                   ("random", "random subgoals"))
+"""The scripted phase-2 policies an evaluation reports beside the learned one, and what each is."""
+
+
+def evaluation_text(report: dict) -> str:
+    """:func:`evaluate_runs`'s report as `mjx-emp eval` prints it: the per-level table or the
+    coverage line, then phase 2's figures and the scripted policies' on the same goals."""
+    from mjx_emp.metrics import LEVEL_FIGURES
+    from mjx_emp.tables import spread_text
+
+    rows = report["runs"]
+    lines = [f"{len(rows)} run(s)" + ("" if len(rows) == 1 else "; mean ± sample std (se: standard error) over runs")]
+    if "levels" in report:
+        lines += ["| level | goal-space volume | greedy success | final distance | success from s0 | success from "
+                  "chained starts | cut short (flipped) |", "|---|---|---|---|---|---|---|"]
+        lines += [f"| {row['level']} | " + " | ".join(spread_text(row[name]) for name in LEVEL_FIGURES) + " |"
+                  for row in report["levels"]]
+        lines.append(f"coverage ({COVERAGE_SKILLS} greedy top-level skills from the initial state, 1 m cells of goal "
+                     f"space): {spread_text(report['coverage_cells'])} cells; top volume x greedy success "
+                     f"{spread_text(report['volume_x_success'])}")
+    else:
+        lines.append(f"{rows[0]['algorithm']}: coverage ({COVERAGE_SKILLS} greedy skills from the initial state, 1 m "
+                     f"cells of goal space): {spread_text(report['coverage_cells'])} cells")
+        if "posterior_std" in report:
+            lines.append(f"posterior mean std: {spread_text(report['posterior_std'])}")
+    p2 = report.get("phase2")
+    if p2 is None:
+        lines.append("phase 2: no run has a phase-2 directory (train one with `mjx-emp phase2 RUN_DIR`)")
+        return "\n".join(lines)
+    first = next(row["figures"]["phase2"] for row in rows if row["figures"].get("phase2") is not None)
+    lines.append(f"phase 2 ({p2['min_distance']['count']} run(s), {first['episodes']} episodes each, region "
+                 f"{first['region']}, eps {first['eps']}): mean min distance to goal {spread_text(p2['min_distance'])}, "
+                 f"success {spread_text(p2['success'])}"
+                 + (f", ended early by a reset (a flip) {spread_text(p2['cut_short'])}" if "cut_short" in p2 else "")
+                 + (f", mean min distance where no reset ended the episode {spread_text(p2['uncut_min_distance'])}"
+                    if "uncut_min_distance" in p2 else ""))
+    lines += [f"  the same goals with {what}: mean min distance {spread_text(p2[policy]['min_distance'])}, "
+              f"success {spread_text(p2[policy]['success'])}" for policy, what in PHASE2_POLICIES if policy in p2]
+    return "\n".join(lines)
