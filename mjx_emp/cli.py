@@ -43,6 +43,7 @@ from mjx_emp.errors import (
     CheckpointWriteError,
     ConfigError,
     Interrupted,
+    JobFailed,
     RenderError,
     TrainingDiverged,
     WriteError,
@@ -475,6 +476,7 @@ def main_guarded(command: Callable, exp) -> None:
         (TrainingDiverged, "training diverged", 1),
         (CheckpointWriteError, "checkpoint write failed", 1),
         (RenderError, "cannot render", 3),
+        (JobFailed, "sweep job failed", 1),
     )
     try:
         command(exp)

@@ -45,3 +45,9 @@ class Interrupted(RuntimeError):
     def __init__(self, message: str, signum: int):
         super().__init__(message)
         self.signum = signum
+
+
+class JobFailed(RuntimeError):
+    """A sweep's job failed in its worker (a diverged run, a full disk, a bug); the message names
+    the row, the failure and the job's log, which holds the whole traceback. Rows of other jobs
+    already written stay; calling the sweep again resumes."""

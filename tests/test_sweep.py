@@ -156,3 +156,17 @@ def test_the_cli_refuses_a_bad_spec_with_exit_2_before_anything_trains(tmp_path)
     assert result.returncode == 2
     assert result.stderr.strip().splitlines()[-1].startswith("mjx-emp: invalid configuration: row 'a': overrides.epochs")
     assert not (tmp_path / "runs").exists()
+
+
+def test_a_failed_job_is_one_error_naming_its_row_and_log():
+    import concurrent.futures
+
+    from mjx_emp.errors import JobFailed
+    from mjx_emp.run.sweep import Job, _as_completed
+
+    spec = load_spec(SMOKE)
+    job = Job(spec.name, spec.rows[0], ("r-s0", "r-s1"), 0, "runs/x/logs/he-k1.log", "mjx-emp sweep")
+    failed = concurrent.futures.Future()
+    failed.set_exception(FloatingPointError("a diverged critic"))
+    with pytest.raises(JobFailed, match="row 'he-k1' failed .*a diverged critic.*runs/x/logs/he-k1.log"):
+        list(_as_completed({failed: job}, "local"))

@@ -43,7 +43,7 @@ from typing import Any
 
 from mjx_emp.algos.registry import algorithm_of, all_presets
 from mjx_emp.checks import config_from_dict
-from mjx_emp.errors import ConfigError
+from mjx_emp.errors import ConfigError, JobFailed
 from mjx_emp.phase2.config import Phase2Config, check_phase2_config
 from mjx_emp.phase2.presets import PHASE2_PRESETS, phase2_preset_for
 from mjx_emp.run import store
@@ -485,7 +485,10 @@ def _executor(kind: str, workers: int, folder: Path, slurm: dict[str, Any]):
         executor = submitit.LocalExecutor(folder=str(folder))
         executor.update_parameters(timeout_min=int(slurm.get("timeout_min", 24 * 60)))
         return executor
-    executor = submitit.AutoExecutor(folder=str(folder), cluster="slurm")
+    try:
+        executor = submitit.AutoExecutor(folder=str(folder), cluster="slurm")
+    except RuntimeError as err:  # no srun/sbatch here
+        raise ConfigError(f"executor: slurm: {err} (`--executor local` runs the spec on this machine)") from None
     try:
         executor.update_parameters(**slurm)
     except (TypeError, ValueError) as err:
@@ -551,7 +554,8 @@ def _as_completed(futures: dict, executor: str) -> Iterator[tuple[Job, list[dict
         except ConfigError as err:
             raise ConfigError(f"{err} (log: {job.log})") from None
         except Exception as err:  # a worker's failure: its row is named, its log holds the traceback
-            raise RuntimeError(f"row {job.row.name!r} failed ({type(err).__name__}: {err}); see {job.log}") from err
+            raise JobFailed(f"row {job.row.name!r} failed ({type(err).__name__}: {err}); see {job.log}; calling the "
+                            f"sweep again resumes") from err
         yield job, rows
 
 
