@@ -135,6 +135,16 @@ def seeded_numpy(seed: int) -> Iterator[None]:
         np.random.set_state(state)
 
 
+def rliable_modules():
+    """rliable's ``library`` and ``metrics`` modules; a ConfigError saying how to install them
+    where the optional ``report`` extra is missing."""
+    try:
+        from rliable import library, metrics
+    except ImportError as err:
+        raise ConfigError(f"report: the statistics need rliable ({err}); pip install \"mjx-emp[report]\"") from None
+    return library, metrics
+
+
 def score_matrix(values: Sequence[float]) -> np.ndarray:
     """Runs as rliable's score matrix: shape (runs, 1), one task."""
     return np.asarray(values, dtype=float).reshape(-1, 1)
@@ -143,7 +153,7 @@ def score_matrix(values: Sequence[float]) -> np.ndarray:
 def iqm_interval(values: Sequence[float], reps: int, seed: int) -> tuple[float, float, float]:
     """(IQM, low, high): rliable's interquartile mean (the mean of the middle 50 % of runs)
     and its percentile stratified-bootstrap interval."""
-    from rliable import library, metrics
+    library, metrics = rliable_modules()
 
     def iqm(scores: np.ndarray) -> np.ndarray:
         return np.array([metrics.aggregate_iqm(scores)])
@@ -179,7 +189,7 @@ def probability_of_improvement(x: Sequence[float], y: Sequence[float], lower_is_
     either side has no runs."""
     if len(x) == 0 or len(y) == 0:
         return None
-    from rliable import library, metrics
+    library, metrics = rliable_modules()
 
     sign = -1.0 if lower_is_better else 1.0
     xs, ys = sign * score_matrix(x), sign * score_matrix(y)
