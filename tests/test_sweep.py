@@ -162,11 +162,11 @@ def test_a_failed_job_is_one_error_naming_its_row_and_log():
     import concurrent.futures
 
     from mjx_emp.errors import JobFailed
-    from mjx_emp.run.sweep import Job, _as_completed
+    from mjx_emp.run.sweep import Job, completed_jobs
 
     spec = load_spec(SMOKE)
     job = Job(spec.name, spec.rows[0], ("r-s0", "r-s1"), 0, "runs/x/logs/he-k1.log", "mjx-emp sweep")
     failed = concurrent.futures.Future()
     failed.set_exception(FloatingPointError("a diverged critic"))
     with pytest.raises(JobFailed, match="row 'he-k1' failed .*a diverged critic.*runs/x/logs/he-k1.log"):
-        list(_as_completed({failed: job}, "local"))
+        list(completed_jobs({failed: job}, "local"))

@@ -522,7 +522,7 @@ def sweep(spec_path: str, runs: str = "", results: str = "", workers: int = 1, e
     done_runs = len(todo.current)
     try:
         futures = {pool.submit(run_job, job): job for job in todo.jobs}
-        for job, rows in _as_completed(futures, executor):
+        for job, rows in completed_jobs(futures, executor):
             for row in rows:
                 append_row(results_path, row)
             written += rows
@@ -539,7 +539,7 @@ def sweep(spec_path: str, runs: str = "", results: str = "", workers: int = 1, e
     return written
 
 
-def _as_completed(futures: dict, executor: str) -> Iterator[tuple[Job, list[dict]]]:
+def completed_jobs(futures: dict, executor: str) -> Iterator[tuple[Job, list[dict]]]:
     """(job, its rows) as jobs finish; a job that fails raises here, naming its row and log."""
     if executor == "local":
         import concurrent.futures
