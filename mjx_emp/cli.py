@@ -21,7 +21,7 @@ import tyro
 from mjx_emp.algos.names import listing_lines
 from mjx_emp.algos.registry import all_presets
 from mjx_emp.algos.retired import RETIRED, Retired
-from mjx_emp.checks import check_levels
+from mjx_emp.checks import LOOP_BOUNDS, check_levels
 from mjx_emp.commands import (
     MAX_EPISODES,
     MAX_FRAME_SIDE,
@@ -223,8 +223,8 @@ def report(exp: ReportExperiment) -> None:
 
 
 def check_seed(seed: int) -> None:
-    """An evaluation or render seed JAX can take: 0 <= seed < 2**63."""
-    if not 0 <= seed < 2**63:
+    """An evaluation or render seed JAX can take: the configs' seed bound (:data:`LOOP_BOUNDS`)."""
+    if not 0 <= seed <= LOOP_BOUNDS["seed"]:
         raise ConfigError(f"seed: must be in [0, 2**63); got {seed}")
 
 

@@ -157,10 +157,10 @@ def run_figures(run_dir: Path, key, episodes: int) -> dict[str, Any]:
     return {**figures, "phase2": phase2_of_run(Path(run_dir), key, episodes)}
 
 
-def run_curves(run_dir: Path) -> dict[str, list]:
-    """A run's learning curves from its metrics: env steps, the top level's box volume and greedy
-    success per epoch (goal-space algorithms), and phase 2's greedy min distance per epoch."""
-    lines = store.read_metrics(Path(run_dir))
+def run_curves(run_dir: Path, lines: list[dict]) -> dict[str, list]:
+    """A run's learning curves from its metrics ``lines``: env steps, the top level's box volume
+    and greedy success per epoch (goal-space algorithms), and phase 2's greedy min distance per
+    epoch (from RUN_DIR/phase2's metrics)."""
     curves: dict[str, list] = {"env_steps": [line["env_steps"] for line in lines]}
     if lines and "levels" in lines[0]:
         curves["top_volume"] = [line["levels"][-1].get("volume") for line in lines]
@@ -173,10 +173,10 @@ def run_curves(run_dir: Path) -> dict[str, list]:
     return curves
 
 
-def training_seconds(run_dir: Path) -> float:
-    """Wall seconds of a run's epochs as its metrics record them (compilation included; for seeds
-    trained together, each seed's epochs count the whole program's time)."""
-    return float(sum(line.get("seconds", 0.0) for line in store.read_metrics(Path(run_dir))))
+def training_seconds(lines: list[dict]) -> float:
+    """Wall seconds of a run's epochs as its metrics ``lines`` record them (compilation included;
+    for seeds trained together, each seed's epochs count the whole program's time)."""
+    return float(sum(line.get("seconds", 0.0) for line in lines))
 
 
 def evaluation_row(run_dir: Path, seed: int = 0, episodes: int = 400, command: str | None = None,
@@ -190,13 +190,14 @@ def evaluation_row(run_dir: Path, seed: int = 0, episodes: int = 400, command: s
     cfg = store.read_run_config(run_dir, "run_dir")
     trained = store.read_run_record(run_dir)
     figures = run_figures(run_dir, jax.random.key(seed), episodes)
+    lines = store.read_metrics(run_dir)
     return {
         "schema": ROW_SCHEMA, "spec": spec, "row": row, "seed": int(cfg.seed), "run_dir": str(run_dir),
         "algorithm": algorithm_of(cfg).name, "env": cfg.env, "k": getattr(cfg, "k", None),
         "preset": trained.get("preset"), "overrides": trained.get("overrides"),
         "phase2_preset": _phase2_preset(run_dir), "phase2_config": _phase2_config(run_dir),
-        "figures": figures, "curves": run_curves(run_dir),
-        "train": {**trained, "env_steps": figures["env_steps"], "wall_s": training_seconds(run_dir),
+        "figures": figures, "curves": run_curves(run_dir, lines),
+        "train": {**trained, "env_steps": figures["env_steps"], "wall_s": training_seconds(lines),
                   "config": store.config_json(cfg)},
         "evaluation": {"seed": seed, "episodes": episodes, **provenance(command)},
     }

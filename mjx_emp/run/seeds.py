@@ -63,11 +63,6 @@ def _jit_group_epoch(group: SeedGroup, state: Any) -> tuple[Any, Any]:
     return jax.vmap(group.agent.train_epoch)(state)
 
 
-def seed_run_dirs(base: str, seeds: tuple[int, ...]) -> list[str]:
-    """The run directory of each seed: BASE-s<seed>."""
-    return [f"{base}-s{seed}" for seed in seeds]
-
-
 def train_seeds(exp: TrainExperiment, record: dict | None = None) -> Any:
     """Train ``exp.seeds`` of ``exp.config`` as one vmapped program, one run directory per
     seed (RUN_DIR-s<seed>), each keeping ``record`` (how it was asked for); returns the stacked
@@ -75,7 +70,7 @@ def train_seeds(exp: TrainExperiment, record: dict | None = None) -> Any:
     :func:`mjx_emp.commands.check_train` accepted (``jobs.train`` checks it)."""
     algorithm = algorithm_of(exp.config)
     base = exp.run_dir or store.default_run_dir(exp.config)
-    dirs = [store.fresh_run_dir(path, "run_dir", "a run", "mjx-emp train") for path in seed_run_dirs(base, exp.seeds)]
+    dirs = [store.fresh_run_dir(path, "run_dir", "a run", "mjx-emp train") for path in store.seed_run_dirs(base, exp.seeds)]
     print(f"run directories: {', '.join(str(d) for d in dirs)}", flush=True)
     with contextlib.ExitStack() as locks:
         for run_dir in dirs:

@@ -62,6 +62,11 @@ def default_run_dir(cfg) -> str:
     return f"runs/{cfg.env}-k{cfg.k}-{stamp}" if name == "he" else f"runs/{name}-{cfg.env}-k{cfg.k}-{stamp}"
 
 
+def seed_run_dirs(base: str, seeds: tuple[int, ...]) -> list[str]:
+    """The run directory of each seed of a seed group: BASE-s<seed>."""
+    return [f"{base}-s{seed}" for seed in seeds]
+
+
 def prepare_run_dir(path: str, field: str = "run_dir") -> Path:
     """Create the run directory, or fail with a ConfigError naming ``field``."""
     run_dir = Path(path)

@@ -95,6 +95,8 @@ class Job:
 
     spec: str
     row: Row
+    base: str
+    """The row's runs' common stem: each seed's run is BASE-s<seed>."""
     run_dirs: tuple[str, ...]
     eval_seed: int
     log: str
@@ -245,9 +247,9 @@ def load_spec(path: str | Path) -> Spec:
 # ---- what is done -----------------------------------------------------------------------------
 
 
-def run_dirs(runs_root: Path, spec: Spec, row: Row) -> tuple[str, ...]:
-    """The run directory of each seed of ``row``: RUNS/<spec>/<row>-s<seed>."""
-    return tuple(str(runs_root / spec.name / f"{row.name}-s{seed}") for seed in row.seeds)
+def row_base(runs_root: Path, spec: Spec, row: Row) -> str:
+    """Where ``row``'s runs live: RUNS/<spec>/<row>, each seed's run BASE-s<seed> (:func:`store.seed_run_dirs`)."""
+    return str(runs_root / spec.name / row.name)
 
 
 def seed_config(row: Row, seed: int) -> Any:
@@ -280,14 +282,13 @@ def row_is_current(stored: dict | None, row: Row, seed: int, eval_seed: int) -> 
     resolved config, phase-2 config and evaluation."""
     if stored is None:
         return False
-    from mjx_emp.run.store import config_json
 
     def task(phase2: dict | None) -> dict | None:  # the phase-1 epoch it ran on is the run's, not the spec's
         return None if phase2 is None else {**phase2, "phase1_epoch": None}
 
     phase2 = None if row.phase2 is None else json.loads(json.dumps(dataclasses.asdict(row.phase2)))
     train, evaluation = stored.get("train", {}), stored.get("evaluation", {})
-    return (train.get("config") == json.loads(json.dumps(config_json(seed_config(row, seed))))
+    return (train.get("config") == json.loads(json.dumps(store.config_json(seed_config(row, seed))))
             and task(stored.get("phase2_config")) == task(phase2)
             and evaluation.get("seed") == eval_seed and evaluation.get("episodes") == row.episodes)
 
@@ -333,13 +334,12 @@ def train_row(job: Job) -> list[str]:
     record = run_record(row.preset, {**row.overrides, **_budget(row)}, job.command)
     started = [i for i in todo if store.newest_checkpoint_on_disk(dirs[i]) is not None]
     if row.group_seeds and len(todo) == len(dirs) and not started:
-        base = str(dirs[0])[: -len(f"-s{row.seeds[0]}")]
-        jobs.train(TrainExperiment(config=row.config, run_dir=base, seeds=row.seeds), record=record)
+        jobs.train(TrainExperiment(config=row.config, run_dir=job.base, seeds=row.seeds), record=record)
         return [f"trained seeds {', '.join(map(str, row.seeds))} as one program"]
     if row.group_seeds and len(started) == len(dirs):
         from mjx_emp.run.seeds import resume_seeds
 
-        resume_seeds([dirs[i] for i in range(len(dirs))], configs)
+        resume_seeds(dirs, configs)
         return [f"resumed seeds {', '.join(map(str, row.seeds))} as one program"]
     done = []
     for i in todo:
@@ -463,7 +463,8 @@ def plan(spec: Spec, runs_root: Path, results: Path, command: str) -> Plan:
                  if row_is_current(stored.get((row.name, seed)), row, seed, spec.eval_seed)]
         current += fresh
         if len(fresh) < len(row.seeds):
-            jobs.append(Job(spec.name, row, run_dirs(runs_root, spec, row), spec.eval_seed,
+            base = row_base(runs_root, spec, row)
+            jobs.append(Job(spec.name, row, base, tuple(store.seed_run_dirs(base, row.seeds)), spec.eval_seed,
                             str(logs / f"{row.name}.log"), command))
     return Plan(jobs, current, sum(len(row.seeds) for row in spec.rows))
 
