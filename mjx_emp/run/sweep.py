@@ -5,6 +5,7 @@ seeds, an env-step budget, the phase-2 task and the evaluation wanted::
 
     name = "smoke-point-mass"       # rows go to results/<name>.jsonl; default: the file's stem
     eval_seed = 0                   # evaluation key, as `mjx-emp eval --seed`
+    eval_seed_per_run = false       # true: the run of seed s is evaluated with key eval_seed + s
     episodes = 400                  # evaluation episodes per level (and phase-2 episodes)
 
     [[row]]
@@ -49,7 +50,7 @@ from mjx_emp.phase2.presets import PHASE2_PRESETS, phase2_preset_for
 from mjx_emp.run import store
 from mjx_emp.run.rows import RESULTS_DIR, append_row, read_rows
 
-SPEC_KEYS = ("name", "eval_seed", "episodes", "runs", "slurm", "report", "row")
+SPEC_KEYS = ("name", "eval_seed", "eval_seed_per_run", "episodes", "runs", "slurm", "report", "row")
 ROW_KEYS = ("name", "preset", "seeds", "overrides", "max_env_steps", "phase2", "phase2_overrides", "episodes",
             "group_seeds")
 AUTO = "auto"
@@ -86,6 +87,12 @@ class Spec:
     slurm: dict[str, Any]
     report: dict[str, Any]
     """``mjx-emp report``'s defaults for this spec: ``metrics`` (a list) and ``baseline`` (a row name)."""
+    eval_seed_per_run: bool = False
+    """Each run's goals drawn with its own key, ``eval_seed`` plus its seed, instead of one key for all."""
+
+    def run_eval_seed(self, seed: int) -> int:
+        """The evaluation key of the run of ``seed``."""
+        return self.eval_seed + seed if self.eval_seed_per_run else self.eval_seed
 
 
 @dataclasses.dataclass(frozen=True)
@@ -98,7 +105,8 @@ class Job:
     base: str
     """The row's runs' common stem: each seed's run is BASE-s<seed>."""
     run_dirs: tuple[str, ...]
-    eval_seed: int
+    eval_seeds: tuple[int, ...]
+    """Each run's evaluation key, in the order of ``run_dirs``."""
     log: str
     command: str
 
@@ -215,6 +223,9 @@ def load_spec(path: str | Path) -> Spec:
     if not isinstance(name, str) or not name or "/" in name:
         raise ConfigError(f"spec: name: must be a file-name-like string; got {name!r}")
     eval_seed = _integer(raw.get("eval_seed", 0), "spec", "eval_seed")
+    per_run = raw.get("eval_seed_per_run", False)
+    if not isinstance(per_run, bool):
+        raise ConfigError(f"spec: eval_seed_per_run: must be true or false; got {per_run!r}")
     episodes = _integer(raw.get("episodes", 400), "spec", "episodes", 1)
     runs = raw.get("runs", "runs/sweeps")
     if not isinstance(runs, str) or not runs:
@@ -241,7 +252,7 @@ def load_spec(path: str | Path) -> Spec:
     names = [row.name for row in checked]
     if "baseline" in report and report["baseline"] not in names:
         raise ConfigError(f"spec: report.baseline: {report['baseline']!r} is not a row; rows: {', '.join(names)}")
-    return Spec(name, str(path), eval_seed, tuple(checked), runs, slurm, report)
+    return Spec(name, str(path), eval_seed, tuple(checked), runs, slurm, report, per_run)
 
 
 # ---- what is done -----------------------------------------------------------------------------
@@ -393,9 +404,9 @@ def run_job(job: Job) -> list[dict]:
         from mjx_emp.run.evaluate import evaluation_row
 
         rows = []
-        for run_dir in job.run_dirs:
+        for run_dir, eval_seed in zip(job.run_dirs, job.eval_seeds):
             print(f"evaluating {run_dir} ...", flush=True)
-            row = evaluation_row(Path(run_dir), job.eval_seed, job.row.episodes, job.command, job.spec,
+            row = evaluation_row(Path(run_dir), eval_seed, job.row.episodes, job.command, job.spec,
                                  job.row.name)
             row["evaluation"]["did"] = done
             rows.append(json.loads(json.dumps(row)))
@@ -460,11 +471,12 @@ def plan(spec: Spec, runs_root: Path, results: Path, command: str) -> Plan:
     logs = runs_root / spec.name / "logs"
     for row in spec.rows:
         fresh = [(row.name, seed) for seed in row.seeds
-                 if row_is_current(stored.get((row.name, seed)), row, seed, spec.eval_seed)]
+                 if row_is_current(stored.get((row.name, seed)), row, seed, spec.run_eval_seed(seed))]
         current += fresh
         if len(fresh) < len(row.seeds):
             base = row_base(runs_root, spec, row)
-            jobs.append(Job(spec.name, row, base, tuple(store.seed_run_dirs(base, row.seeds)), spec.eval_seed,
+            jobs.append(Job(spec.name, row, base, tuple(store.seed_run_dirs(base, row.seeds)),
+                            tuple(spec.run_eval_seed(seed) for seed in row.seeds),
                             str(logs / f"{row.name}.log"), command))
     return Plan(jobs, current, sum(len(row.seeds) for row in spec.rows))
 
