@@ -23,6 +23,7 @@ import numpy as np
 
 from mjx_emp import tables
 from mjx_emp.errors import ConfigError
+from mjx_emp.run.provenance import UNKNOWN
 
 DEFAULT_REPS = 2000
 """Bootstrap resamples per interval: a few tenths of a second per metric, and an interval
@@ -78,19 +79,28 @@ METRICS: dict[str, Metric] = {m.name: m for m in (
     _metric("posterior_std", ("figures", "posterior_std"), "skill posterior std", ""),
     _metric("flips", ("figures", "flips"), "flips per episode", "", True),
     _metric("env_steps", ("figures", "env_steps"), "env steps", ""),
+    _metric("top_success_training", ("figures", "top_success_training"),
+            "top-level success in training (mean of the last epochs)", "fraction"),
+    _metric("phase2_aimed_half_min_distance", ("figures", "phase2", "aimed_half", "min_distance"),
+            "phase-2 aimed-within-half min distance", "m", True),
 )}
 """Every metric a report can show, by name. The volume's unit is m² for (x, y) goals and m for
 x goals; one table never mixes environments, so the unit is named once for both."""
 
 
 def metric_named(name: str | Metric) -> Metric:
-    """``name``'s entry in :data:`METRICS` (a :class:`Metric` passes through); an unknown name is
-    a ConfigError listing the known ones."""
+    """``name``'s entry in :data:`METRICS` (a :class:`Metric` passes through), or for a dotted
+    path into the row (``figures.cage.phase2.reached_beyond``) a metric reading that path,
+    labelled by its last part, higher is better; any other name is a ConfigError listing the
+    known ones."""
     if isinstance(name, Metric):
         return name
-    if name not in METRICS:
-        raise ConfigError(f"metric: {name!r} is not one of {', '.join(METRICS)}")
-    return METRICS[name]
+    if name in METRICS:
+        return METRICS[name]
+    path = tuple(name.split("."))
+    if len(path) > 1 and path[0] == "figures" and all(path):
+        return _metric(name, path, path[-1].replace("_", " "))
+    raise ConfigError(f"metric: {name!r} is not one of {', '.join(METRICS)}, nor a path figures.NAME[.NAME...]")
 
 
 def lookup(row: dict, path: Sequence[str]) -> Any:
@@ -238,13 +248,16 @@ def command_text(row: dict) -> str:
 def distinct_commands(group: Sequence[dict]) -> str:
     """Every distinct command of a group's rows, in first-appearance order ("; " between; a
     group is normally one command over several seeds)."""
-    return "; ".join(dict.fromkeys(command_text(row) for row in group))
+    commands = [command_text(row) for row in group if row.get("preset") not in (None, UNKNOWN)]
+    return "; ".join(dict.fromkeys(commands)) or MISSING
 
 
 def spread_cell(stat: dict | None, group_size: int) -> str:
     """``mean ± std (se)``; ``n=K`` follows where fewer than all the group's rows have it."""
     if stat is None:
         return MISSING
+    if stat["n"] == 1:
+        return sig3(stat["mean"]) if group_size == 1 else f"{sig3(stat['mean'])} n=1"
     cell = f"{sig3(stat['mean'])} ± {sig3(stat['std'])} ({sig3(stat['se'])})"
     return cell if stat["n"] == group_size else f"{cell} n={stat['n']}"
 
@@ -255,8 +268,10 @@ def interval_cell(point: float, low: float, high: float) -> str:
 
 
 def iqm_cell(stat: dict | None) -> str:
-    """The IQM with its interval, or the missing mark."""
-    return MISSING if stat is None else interval_cell(stat["iqm"], stat["iqm_low"], stat["iqm_high"])
+    """The IQM with its interval, or the missing mark (also for one run, which has no interval)."""
+    if stat is None or stat["n"] == 1:
+        return MISSING
+    return interval_cell(stat["iqm"], stat["iqm_low"], stat["iqm_high"])
 
 
 def table_headers(group_by: str, metrics: Sequence[Metric], baseline: str | None) -> list[str]:
@@ -309,7 +324,9 @@ def markdown_table(rows: Sequence[dict], metrics: Sequence[str | Metric], group_
         if with_baseline and against is None:
             cells += [MISSING] * len(chosen)
         lines.append(cells)
-    return tables.markdown_table(table_headers(group_by, chosen, baseline), lines)
+    headers = table_headers(group_by, chosen, baseline)
+    held = [i for i in range(len(headers)) if i == 0 or any(line[i] != MISSING for line in lines)]
+    return tables.markdown_table([headers[i] for i in held], [[line[i] for i in held] for line in lines])
 
 
 # --------------------------------------------------------------------------- figures
@@ -494,18 +511,66 @@ def held_metrics(rows: Sequence[dict], names: Sequence[str] = DEFAULT_METRICS) -
     return [name for name in names if metric_values(rows, name)]
 
 
+@dataclass(frozen=True)
+class BenchmarkSpec:
+    """A benchmark's report spec: the script command that appends its rows to
+    ``results/<name>.jsonl`` (rows of the evaluation rows' schema, made by
+    :func:`mjx_emp.run.rows.benchmark_row`) and ``mjx-emp report``'s defaults for them."""
+
+    name: str
+    path: str
+    command: str
+    report: dict[str, Any]
+
+
+BENCHMARK_KEYS = ("name", "command", "report")
+
+
+def load_report_spec(spec_path: str) -> Any:
+    """The spec a report reads: a benchmark spec (a TOML file with a ``command``, see
+    :class:`BenchmarkSpec`) or a sweep spec (:func:`mjx_emp.run.sweep.load_spec`)."""
+    import tomllib
+
+    from mjx_emp.run.sweep import REPORT_KEYS, load_spec
+
+    path = Path(spec_path)
+    try:
+        raw = tomllib.loads(read_text(path, "spec"))
+    except tomllib.TOMLDecodeError as err:
+        raise ConfigError(f"spec: {path} is not valid TOML ({err})") from None
+    if "command" not in raw:
+        return load_spec(spec_path)
+    unknown = sorted(set(raw) - set(BENCHMARK_KEYS))
+    if unknown:
+        raise ConfigError(f"spec: {unknown[0]}: not a benchmark spec field; allowed: {', '.join(BENCHMARK_KEYS)}")
+    report = raw.get("report", {})
+    if not isinstance(raw["command"], str) or not isinstance(report, dict) or set(report) - set(REPORT_KEYS):
+        raise ConfigError(f"spec: {path}: command must be a string and report a table of "
+                          f"{', '.join(REPORT_KEYS)}")
+    return BenchmarkSpec(str(raw.get("name", path.stem)), str(path), raw["command"], report)
+
+
 def spec_rows(spec: Any, results: Path) -> list[dict]:
-    """The stored rows of ``spec`` in the spec's order of rows, then seeds (rows of rows or seeds
-    the spec no longer names are left out)."""
+    """The stored rows of ``spec``: for a sweep spec in the spec's order of rows, then seeds
+    (rows of rows or seeds the spec no longer names are left out); for a benchmark spec every
+    row of its name, in the order they were first stored."""
     from mjx_emp.run.rows import read_rows
 
-    stored = {(row.get("row"), row.get("seed")): row for row in read_rows(results) if row.get("spec") == spec.name}
+    mine = [row for row in read_rows(results) if row.get("spec") == spec.name]
+    if isinstance(spec, BenchmarkSpec):
+        return mine
+    stored = {(row.get("row"), row.get("seed")): row for row in mine}
     return [stored[(row.name, seed)] for row in spec.rows for seed in row.seeds if (row.name, seed) in stored]
 
 
-def reproduce_line(spec_path: str, options: str = "") -> str:
-    """The commands that rebuild a report: the sweep, then the report itself."""
-    return f"Reproduce: `mjx-emp sweep {spec_path}`, then `mjx-emp report {spec_path}{options}`."
+def producing_command(spec: Any) -> str:
+    """The command that makes a spec's rows: its sweep, or its benchmark script."""
+    return spec.command if isinstance(spec, BenchmarkSpec) else f"mjx-emp sweep {spec.path}"
+
+
+def reproduce_line(spec: Any, options: str = "") -> str:
+    """The commands that rebuild a report: the rows' command, then the report itself."""
+    return f"Reproduce: `{producing_command(spec)}`, then `mjx-emp report {spec.path}{options}`."
 
 
 def report_spec(spec_path: str, results: str = "", metrics: Sequence[str] = (), baseline: str = "",
@@ -518,26 +583,26 @@ def report_spec(spec_path: str, results: str = "", metrics: Sequence[str] = (), 
     spec's ``[report]`` table may name ``metrics`` and ``baseline``."""
     from mjx_emp.run.rows import RESULTS_DIR
     from mjx_emp.run.store import output_target
-    from mjx_emp.run.sweep import load_spec
 
     if reps < 1:
         raise ConfigError(f"reps: must be >= 1; got {reps}")
     for path, field in ((into, "into"), (figure, "figure")):
         if path and write:
             output_target(Path(path), field)  # before anything is read: a FIFO would block, a device be lost
-    spec = load_spec(spec_path)
+    spec = load_report_spec(spec_path)
     results_path = Path(results or Path(RESULTS_DIR) / f"{spec.name}.jsonl")
     rows = spec_rows(spec, results_path)
     if not rows:
         raise ConfigError(f"results: {results_path} holds no row of spec {spec.name!r}; run "
-                          f"`mjx-emp sweep {spec_path}` first")
+                          f"`{producing_command(spec)}` first")
     chosen = list(metrics or spec.report.get("metrics", ()) or held_metrics(rows))
     baseline = baseline or spec.report.get("baseline", "")
+    reps = spec.report.get("reps", reps) if reps == DEFAULT_REPS else reps
     table = markdown_table(rows, chosen, baseline=baseline or None, reps=reps)
     options = "".join(f" --{flag} {value}" for flag, value in (("figure", figure), ("curve", curve if figure else ""),
                                                                 ("into", into), ("block", block)) if value)
-    missing = sorted({(row.name, seed) for row in spec.rows for seed in row.seeds}
-                     - {(row["row"], row["seed"]) for row in rows})
+    asked = set() if isinstance(spec, BenchmarkSpec) else {(row.name, seed) for row in spec.rows for seed in row.seeds}
+    missing = sorted(asked - {(row["row"], row["seed"]) for row in rows})
     parts = [table]
     if missing:
         parts.append(f"Not yet in {results_path}: " + ", ".join(f"{name} seed {seed}" for name, seed in missing) + ".")
@@ -545,7 +610,7 @@ def report_spec(spec_path: str, results: str = "", metrics: Sequence[str] = (), 
         chart = seed_band_figure(rows, curve, figure, title=f"{spec.name}: {curve_heading(curve)}")
         link = os.path.relpath(chart.path, Path(into).parent) if into else str(chart.path)
         parts.append(f"![{spec.name}: {curve_heading(curve)}]({link})")
-    parts.append(reproduce_line(spec_path, options))
+    parts.append(reproduce_line(spec, options))
     text = "\n\n".join(parts)
     if into and write:
         write_block(into, block or spec.name, text)

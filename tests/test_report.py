@@ -12,6 +12,7 @@ from mjx_emp.run.rows import read_rows
 from mjx_emp.report import (
     METRICS,
     markdown_table,
+    metric_named,
     metric_values,
     probability_of_improvement,
     read_block,
@@ -79,8 +80,8 @@ EXPECTED_TABLE = """\
 | he-k1 | point-mass-k1 --batch-size 64 --epochs 3 | 2 | 0.96 M | 0.6 ± 0.141 (0.1) | 0.6 [0.5, 0.7] \
 | 12 ± 2.83 (2) | 12 [10, 14] | 1 [1, 1] | 1 [1, 1] |
 | gcrl-k1 | point-mass-k1 --batch-size 64 --epochs 3 | 2 | 0.96 M | 1 ± 0.141 (0.1) | 1 [0.9, 1.1] \
-| 4 ± 0 (0) n=1 | 4 [4, 4] | - | - |
-| diayn | point-mass-k1 --batch-size 64 --epochs 3 | 1 | 0.96 M | - | - | 20 ± 0 (0) | 20 [20, 20] | - \
+| 4 n=1 | - | - | - |
+| diayn | point-mass-k1 --batch-size 64 --epochs 3 | 1 | 0.96 M | - | - | 20 | - | - \
 | 1 [1, 1] |"""
 
 
@@ -89,6 +90,15 @@ def test_the_table_has_a_line_per_group_with_spread_iqm_and_improvement_over_the
     assert table == EXPECTED_TABLE
     assert markdown_table(TABLE_ROWS, ["phase2_min_distance", "coverage_cells"], baseline="gcrl-k1",
                           reps=REPS) == table
+
+
+def test_a_column_no_group_fills_is_left_out_and_a_dotted_path_is_a_metric():
+    rows = [{**make_row("bench", 0, coverage=3), "preset": "unknown", "figures": {"steps_per_s": 1500.0}}]
+    table = markdown_table(rows, ["figures.steps_per_s"], reps=REPS)
+    assert table.splitlines()[0] == "| row | seeds | steps per s ↑ mean ± std (se) |"
+    assert table.splitlines()[2] == "| bench | 1 | 1500 |"
+    with pytest.raises(ConfigError, match="figures.NAME"):
+        metric_named("speed")
 
 
 def test_the_table_groups_by_any_field_and_refuses_an_unknown_baseline():

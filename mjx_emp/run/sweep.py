@@ -53,6 +53,8 @@ from mjx_emp.run.rows import RESULTS_DIR, append_row, read_rows
 SPEC_KEYS = ("name", "eval_seed", "eval_seed_per_run", "episodes", "runs", "slurm", "report", "row")
 ROW_KEYS = ("name", "preset", "seeds", "overrides", "max_env_steps", "phase2", "phase2_overrides", "episodes",
             "group_seeds")
+REPORT_KEYS = ("metrics", "baseline", "reps")
+"""What a spec's ``[report]`` table may set: `mjx-emp report`'s defaults for the spec."""
 AUTO = "auto"
 """``phase2 = "auto"``: the phase-2 preset `mjx-emp phase2 RUN_DIR` would pick for the run."""
 EXECUTORS = ("local", "submitit-local", "slurm")
@@ -234,8 +236,11 @@ def load_spec(path: str | Path) -> Spec:
     if not isinstance(slurm, dict):
         raise ConfigError(f"spec: slurm: must be a table of submitit parameters; got {slurm!r}")
     report = raw.get("report", {})
-    if not isinstance(report, dict) or sorted(set(report) - {"metrics", "baseline"}):
-        raise ConfigError(f"spec: report: a table of metrics (a list) and baseline (a row name); got {report!r}")
+    if not isinstance(report, dict) or sorted(set(report) - set(REPORT_KEYS)):
+        raise ConfigError(f"spec: report: a table of metrics (a list), baseline (a row name) and reps (bootstrap "
+                          f"resamples); got {report!r}")
+    if "reps" in report:
+        _integer(report["reps"], "spec", "report.reps", 1)
     rows = raw.get("row")
     if not isinstance(rows, list) or not rows:
         raise ConfigError("spec: row: give at least one [[row]] table")
