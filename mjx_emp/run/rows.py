@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from mjx_emp.errors import ConfigError
+from mjx_emp.run.provenance import UNKNOWN, provenance
 from mjx_emp.run.store import output_target, writing
 
 RESULTS_DIR = "results"
@@ -94,3 +95,24 @@ def read_rows(path: Path | str) -> list[dict[str, Any]]:
             raise
         rows[row_key(row)] = row
     return list(rows.values())
+
+
+BENCHMARK = "benchmark"
+"""The ``kind`` of a row a benchmark script measured (an evaluation row has none)."""
+
+
+def benchmark_row(spec: str, row: str, figures: dict[str, Any], seed: int = 0, command: str | None = None,
+                  preset: str | None = None, env_steps: float | None = None,
+                  wall_s: float | None = None) -> dict[str, Any]:
+    """A benchmark's measurement as a row of the evaluation rows' layout, so that one store and
+    `mjx-emp report` serve both: ``figures`` hold its numbers (JSON-ready), ``train`` and
+    ``evaluation`` this process's provenance (code, versions, machine, command, time).
+    ``row`` names the measured setting; with ``seed`` it is the row's key in ``spec``."""
+    made = provenance(command)
+    return {"schema": ROW_SCHEMA, "kind": BENCHMARK, "spec": spec, "row": row, "seed": seed, "run_dir": None,
+            "algorithm": figures.get("algorithm"), "env": figures.get("env"), "k": figures.get("k"),
+            "preset": preset or UNKNOWN, "overrides": {}, "phase2_preset": None, "phase2_config": None,
+            "figures": json.loads(json.dumps({**figures, "env_steps": env_steps} if env_steps is not None
+                                             else figures)),
+            "curves": {}, "train": {**made, "env_steps": env_steps, "wall_s": wall_s, "config": None},
+            "evaluation": {"seed": None, "episodes": None, **made}}
