@@ -85,4 +85,3 @@ def release_compiled_programs():
 
 
 sys.path.insert(0, str(Path(__file__).parent))  # shared helpers such as tiny.py
-sys.path.insert(0, str(Path(__file__).parents[1] / "experiments"))  # the experiment scripts

@@ -201,13 +201,26 @@ def test_damaged_metrics_lines_are_named_and_no_valid_line_is_lost(tmp_path, cap
 
 
 def test_plot_reads_a_metrics_file_with_a_torn_last_line(tmp_path):
-    from mjx_emp.viz.plots import plot_goal_space_growth
+    from mjx_emp.viz.plots import (
+        axes_content,
+        goal_space_growth_figure,
+        plot_goal_space_growth,
+    )
 
     path = tmp_path / "metrics.jsonl"
-    line = {"epoch": 1, "env_steps": 10.0, "levels": [{"level": 0, "volume": 1.0, "success": 0.5, "shift": [0.0, 0.0],
-                                                       "half_width": [0.5, 0.5]}]}
-    path.write_text(json.dumps(line) + "\n" + json.dumps(line)[:20])
-    assert plot_goal_space_growth(read_metrics(tmp_path), tmp_path / "growth.png").exists()
+    lines = [{"epoch": e, "env_steps": 10.0 * e, "levels": [{"level": 0, "volume": float(e), "success": 0.25 * e,
+                                                             "shift": [0.0, 0.0], "half_width": [0.5, 0.5]}]}
+             for e in (1, 2)]
+    path.write_text("".join(json.dumps(line) + "\n" for line in lines) + json.dumps(lines[0])[:20])
+    metrics = read_metrics(tmp_path)
+    volume, success = axes_content(goal_space_growth_figure(metrics))
+    # One point per whole line: the torn line adds none, neither a gap nor a zero.
+    assert volume.series == {"level 0": ([10.0, 20.0], [1.0, 2.0])}
+    assert success.series == {"level 0": ([10.0, 20.0], [0.25, 0.5])}
+    assert volume.legend == ["level 0"] and volume.yscale == "log"
+    assert (volume.title, volume.ylabel) == ("goal-space growth", "goal-space volume at s0")  # no unit given
+    assert (success.xlabel, success.ylabel) == ("environment steps", "greedy success in own goal space")
+    assert plot_goal_space_growth(metrics, tmp_path / "growth.png").stat().st_size > 0
 
 
 # ---- the command line, in separate processes that are killed for real ---------------------

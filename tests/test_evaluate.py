@@ -11,7 +11,9 @@ from mjx_emp import cli
 from mjx_emp.metrics import aggregate_phase2, aggregate_runs, coverage_cells, mean_and_stderr, running_min_distance
 from mjx_emp.viz.plots import (
     METHOD_COLOURS,
+    axes_content,
     colour_of,
+    goal_space_growth_figure,
     plot_goal_space_boxes,
     plot_goal_space_growth,
     plot_phase2_curves,
@@ -162,10 +164,26 @@ def test_goal_space_boxes_plot_draws_every_level(tmp_path, dims):
 
 
 def test_plot_command_draws_a_run_and_names_the_field_when_there_is_none(tmp_path, capsys):
-    lines = [{"epoch": e, "levels": [{"volume": 0.1 * e, "success": 0.5}]} for e in (1, 2, 3)]
+    from mjx_emp.algos.he.config import HEConfig
+    from mjx_emp.run.store import write_config
+
+    write_config(tmp_path, HEConfig(n=(10,), eps=(0.6,), sigma_gc=(0.6,), sigma_gs=(0.6,), init_half_width=(0.6,),
+                                    max_half_width=(3.0,)))  # the point mass: (x, y) goals, volumes in m²
+    lines = [{"epoch": e, "levels": [{"volume": 0.1 * e, "success": 0.5}]} for e in (1, 2, 3)]  # no env steps
     (tmp_path / "metrics.jsonl").write_text("".join(json.dumps(m) + "\n" for m in lines))
     cli.main(["plot", str(tmp_path)])
-    assert (tmp_path / "plots" / "goal_space_growth.png").stat().st_size > 0
+    drawn = tmp_path / "plots" / "goal_space_growth.png"
+    assert capsys.readouterr().out.splitlines()[1:] == [str(drawn)]  # no checkpoints, no phase 2: growth only
+    title = "HE k=1 on point_mass: goal-space growth"
+    volume, success = axes_content(goal_space_growth_figure(lines, "m²", title))
+    assert volume.series == {"level 0": ([1.0, 2.0, 3.0], [0.1 * e for e in (1, 2, 3)])}  # epochs on the x axis
+    assert success.series == {"level 0": ([1.0, 2.0, 3.0], [0.5, 0.5, 0.5])}
+    assert (volume.title, volume.ylabel, volume.yscale) == (title, "goal-space volume at s0 (m²)", "log")
+    assert volume.legend == ["level 0"]
+    assert (success.xlabel, success.ylabel) == ("epoch", "greedy success in own goal space")
+    # The command drew that very figure: its PNG is the checked figure's, pixel for pixel.
+    expected = plot_goal_space_growth(lines, tmp_path / "expected.png", "m²", title)
+    np.testing.assert_array_equal(drawn_png(drawn), drawn_png(expected))
     with pytest.raises(SystemExit) as exit_info:
         cli.main(["plot", str(tmp_path / "missing")])
     assert exit_info.value.code == 2 and "run_dir" in capsys.readouterr().err

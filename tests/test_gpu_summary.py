@@ -1,12 +1,10 @@
 """The GPU session summary reads what a session leaves behind and reports it faithfully."""
 
 import json
-import sys
-from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+from tiny import benchmark
 
-import gpu_summary  # noqa: E402
+gpu_summary = benchmark("gpu_summary")
 
 
 def epoch(n: int, seconds: float, volume: float, success: float) -> dict:

@@ -105,8 +105,7 @@ def test_no_two_modules_import_each_other_even_within_a_layer():
 
 
 def test_no_module_imports_another_modules_private_names():
-    sources = package_modules() + [*ROOT.glob("tests/*.py"), *ROOT.glob("benchmarks/*.py"),
-                                   *ROOT.glob("experiments/*.py")]
+    sources = package_modules() + [*ROOT.glob("tests/*.py"), *ROOT.glob("benchmarks/*.py")]
     private = [
         f"{p.relative_to(ROOT)}: {name} from {target}"
         for p in sources

@@ -23,15 +23,3 @@ def test_point_mass_default_grows_its_goal_space_and_reaches_it():
     assert final >= 10 * initial, f"goal space grew {final / initial:.1f}x"
     result = trainer.evaluate(state, 0, jax.random.key(7), rounds=8)  # 512 episodes
     assert result["success"] >= 0.8, result
-
-
-@pytest.mark.slow  # about 13 minutes of CPU
-def test_two_levels_learn_a_larger_top_goal_space_than_one_for_the_same_env_steps():
-    from compare_levels import compare
-
-    result = compare()
-    two, one = result["k2"], result["k1"]
-    assert one["env_steps"] >= two["env_steps"]  # k=1 gets at least as much experience
-    assert two["n"][0] == one["n"][0]
-    assert two["top_goal_space"]["volume"] > one["top_goal_space"]["volume"], result
-    assert two["top_success"] >= 0.8, result  # a larger box that is also reached

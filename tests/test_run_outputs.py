@@ -11,7 +11,7 @@ import pytest
 from PIL import Image
 from tiny import SMALL, run_cli
 
-from mjx_emp.run import checkpoint, jobs, store
+from mjx_emp.run import checkpoint, jobs
 from mjx_emp.viz.render import Recording, first_skills, marker_position
 
 
@@ -202,17 +202,6 @@ def test_eval_reports_every_level_and_phase2_and_aggregates_runs_as_seeds(traine
     assert "the same goals with subgoals aimed within the top box's central half" in result.stdout
 
     assert "2 run(s); mean ± sample std (se: standard error) over runs" in result.stdout
-
-
-def test_a_comparison_row_carries_the_scripted_policies_figures_beside_the_learned_ones(trained_run, phase2_run):
-    from baselines import phase2_of
-
-    row = phase2_of(trained_run, seed=0, episodes=16)
-    epochs = store.read_metrics(phase2_run)  # other tests may have resumed it further
-    assert row["phase2_min_distance"] >= 0.0 and len(row["phase2_curve"]) == len(epochs) >= 2  # a point per epoch
-    for policy in ("aimed", "aimed_half", "random"):  # the chaining diagnostic on the same goals
-        assert row[f"phase2_{policy}_min_distance"] >= 0.0 and 0.0 <= row[f"phase2_{policy}_success"] <= 1.0
-    assert row["phase2_random_min_distance"] != row["phase2_aimed_min_distance"]  # a different policy, not a copy
 
 
 def test_an_export_keeps_the_skills_without_the_replay_and_phase_2_reads_it(trained_run, phase2_run, tmp_path):

@@ -7,7 +7,6 @@ import dataclasses
 import json
 
 import pytest
-from baselines import train_or_resume
 from tiny import TINY1, run_cli
 
 from mjx_emp.algos.he.presets import PRESETS
@@ -61,18 +60,3 @@ def test_a_budget_below_one_step_is_refused_naming_the_field(tmp_path):
     assert not (tmp_path / "r").exists()
     with pytest.raises(ConfigError, match="max_env_steps: must be >= 1, or 0 to lift the run's budget; got -5"):
         check_resume(ResumeExperiment(resume=str(tmp_path / "r"), max_env_steps=-5))
-
-
-def test_the_comparison_scripts_resume_a_finished_run_to_its_own_epochs_unless_told_otherwise(tmp_path):
-    run_dir = tmp_path / "point-mass-k1-s0"  # where train_or_resume keeps (point-mass-k1, seed 0)
-    jobs.train(TrainExperiment(config=dataclasses.replace(TINY1, epochs=1), run_dir=str(run_dir)))
-    assert train_or_resume(tmp_path, "point-mass-k1", 0, None) == run_dir
-    assert len(steps_per_line(run_dir)) == 1  # not trained on to the preset's own epoch count
-    train_or_resume(tmp_path, "point-mass-k1", 0, 2)
-    assert len(steps_per_line(run_dir)) == 2 and store.read_run_config(run_dir).epochs == 2
-
-
-def test_a_box_width_is_refused_for_a_preset_that_learns_its_goal_space(tmp_path):
-    with pytest.raises(SystemExit, match="goal_half_width: only presets with a hand-set goal box"):
-        train_or_resume(tmp_path, "metra-point-mass", 0, 1, goal_half_width=1.0)
-    assert not any(tmp_path.iterdir())

@@ -1,11 +1,14 @@
-"""Small agents shared by the test modules: an in-process trainer and a CLI config."""
+"""Small agents shared by the test modules: an in-process trainer and a CLI config; and a
+benchmark script loaded as a module."""
 
 from __future__ import annotations
 
 import dataclasses
 import functools
+import importlib.util
 import subprocess
 import sys
+from pathlib import Path
 
 import jax
 import numpy as np
@@ -67,3 +70,14 @@ def mjx_emp(*args: str) -> list[str]:
 def run_cli(*args: str, env: dict[str, str] | None = None) -> subprocess.CompletedProcess:
     """Run ``mjx-emp ARGS`` to completion (in ``env``, else this process's environment), capturing its output."""
     return subprocess.run(mjx_emp(*args), capture_output=True, text=True, timeout=600, env=env)
+
+
+@functools.cache
+def benchmark(name: str):
+    """``benchmarks/NAME.py`` as a module, loaded from its file (benchmarks are not a package, and
+    no test adds their folder to the import path)."""
+    spec = importlib.util.spec_from_file_location(name, Path(__file__).resolve().parents[1] / "benchmarks" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module  # dataclasses look their module up while the script runs
+    spec.loader.exec_module(module)
+    return module

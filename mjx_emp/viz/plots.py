@@ -5,6 +5,7 @@ curves and the paths of the greedy skills that METRA's coverage count reads."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -39,6 +40,32 @@ def _save(fig, path: Path) -> Path:
     return path
 
 
+@dataclass(frozen=True)
+class AxesContent:
+    """What one set of a figure's axes shows, read back from the axes: its texts, its y scale,
+    its legend's entries and, per labelled line, the points plotted (x values, y values)."""
+
+    title: str
+    xlabel: str
+    ylabel: str
+    yscale: str
+    legend: list[str]
+    series: dict[str, tuple[list[float], list[float]]]
+
+
+def axes_content(fig) -> list[AxesContent]:
+    """Each of ``fig``'s axes, in the order they were made, as :class:`AxesContent` (lines
+    without a label of their own, such as an unlabelled curve, are left out of ``series``)."""
+    shown = []
+    for ax in fig.axes:
+        legend = ax.get_legend()
+        series = {line.get_label(): ([float(x) for x in line.get_xdata()], [float(y) for y in line.get_ydata()])
+                  for line in ax.get_lines() if not line.get_label().startswith("_")}
+        shown.append(AxesContent(ax.get_title(), ax.get_xlabel(), ax.get_ylabel(), ax.get_yscale(),
+                                 [text.get_text() for text in legend.get_texts()] if legend else [], series))
+    return shown
+
+
 METHOD_COLOURS = {"HE k=1": "#1f77b4", "HE k=2": "#d62728", "HE k=3": "#9467bd", "HE k=4": "#8c564b",
                   "GCRL k=1": "#2ca02c", "DIAYN": "#ff7f0e", "HIDIO": "#e377c2", "DADS": "#7f7f7f",
                   "METRA": "#17becf"}
@@ -69,16 +96,6 @@ def colour_of(label: str, taken: list[str]) -> str:
     used = {to_hex(c) for c in taken}  # the cycle may hold RGB tuples where METHOD_COLOURS holds hex
     spare = [to_hex(c) for c in _pyplot().rcParams["axes.prop_cycle"].by_key()["color"] if to_hex(c) not in used]
     return spare[0] if spare else "black"
-
-
-def shades(colour: str, count: int) -> list[str]:
-    """``count`` shades of ``colour`` from darker to lighter (``colour`` itself for one), so that
-    variants of one method (GCRL's boxes) share its hue and stay apart from other methods."""
-    from matplotlib.colors import to_hex, to_rgb
-
-    base = np.array(to_rgb(colour))
-    mixes = np.linspace(-0.45, 0.45, count) if count > 1 else [0.0]
-    return [to_hex(base * (1 + m) if m < 0 else base + (1 - base) * m) for m in mixes]
 
 
 def _steps(metrics: list[dict]) -> np.ndarray:
@@ -140,14 +157,22 @@ def plot_seed_bands(groups: dict[str, list[list[dict]]], panels: list[tuple[str,
 
 def plot_goal_space_growth(metrics: list[dict], path: Path, unit: str = "", title: str = "") -> Path:
     """One run's goal-space volume at s0 (log scale) and greedy success per level against env
-    steps (epochs where the lines have no env steps), saved as PNG."""
-    plt = _pyplot()
+    steps (epochs where the lines have no env steps), saved as PNG: the figure of
+    :func:`goal_space_growth_figure`."""
+    return _save(goal_space_growth_figure(metrics, unit, title), path)
+
+
+def goal_space_growth_figure(metrics: list[dict], unit: str = "", title: str = ""):
+    """The figure :func:`plot_goal_space_growth` saves, drawn without saving it (a matplotlib
+    Figure outside pyplot's figure registry; :func:`axes_content` reads back what it shows)."""
+    from matplotlib.figure import Figure
 
     if not metrics:
         raise ValueError("no epochs to plot: metrics is empty")
     steps = _steps(metrics)
     levels = len(metrics[0]["levels"])
-    fig, (volume_ax, success_ax) = plt.subplots(2, 1, sharex=True, figsize=(7, 6))
+    fig = Figure(figsize=(7, 6))
+    volume_ax, success_ax = fig.subplots(2, 1, sharex=True)
     for level in range(levels):
         colour = LEVEL_COLOURS[level % len(LEVEL_COLOURS)]
         volume_ax.plot(steps, [m["levels"][level]["volume"] for m in metrics], color=colour, label=f"level {level}")
@@ -161,7 +186,7 @@ def plot_goal_space_growth(metrics: list[dict], path: Path, unit: str = "", titl
     success_ax.set_xlabel("environment steps" if "env_steps" in metrics[0] else "epoch")
     success_ax.set_ylim(0, 1.05)
     fig.tight_layout()
-    return _save(fig, path)
+    return fig
 
 
 def plot_phase2_curves(metrics: list[dict], eps: float, path: Path) -> Path:
