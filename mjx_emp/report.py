@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from mjx_emp import tables
+from mjx_emp.algos.retired import flag_text
 from mjx_emp.errors import ConfigError
 from mjx_emp.run.provenance import UNKNOWN
 
@@ -241,7 +242,8 @@ def group_rows(rows: Sequence[dict], group_by: str = "row") -> dict[str, list[di
 def command_text(row: dict) -> str:
     """A row's preset and overrides as a compact command tail: ``point-mass-k1 --epochs 3``."""
     overrides = row.get("overrides") or {}
-    flags = [f"--{key.replace('_', '-')} {value}" for key, value in sorted(overrides.items())]
+    flags = [flag_text(key, tuple(value) if isinstance(value, list) else value)
+             for key, value in sorted(overrides.items())]
     return " ".join([str(row.get("preset") or MISSING), *flags])
 
 
@@ -596,11 +598,14 @@ def report_spec(spec_path: str, results: str = "", metrics: Sequence[str] = (), 
         raise ConfigError(f"results: {results_path} holds no row of spec {spec.name!r}; run "
                           f"`{producing_command(spec)}` first")
     chosen = list(metrics or spec.report.get("metrics", ()) or held_metrics(rows))
+    baseline_asked, reps_asked = baseline, reps
     baseline = baseline or spec.report.get("baseline", "")
     reps = spec.report.get("reps", reps) if reps == DEFAULT_REPS else reps
     table = markdown_table(rows, chosen, baseline=baseline or None, reps=reps)
-    options = "".join(f" --{flag} {value}" for flag, value in (("figure", figure), ("curve", curve if figure else ""),
-                                                                ("into", into), ("block", block)) if value)
+    asked_options = (("metrics", " ".join(metrics)), ("baseline", baseline_asked),
+                     ("reps", str(reps_asked) if reps_asked != DEFAULT_REPS else ""), ("figure", figure),
+                     ("curve", curve if figure else ""), ("into", into), ("block", block))
+    options = "".join(f" --{flag} {value}" for flag, value in asked_options if value)
     asked = set() if isinstance(spec, BenchmarkSpec) else {(row.name, seed) for row in spec.rows for seed in row.seeds}
     missing = sorted(asked - {(row["row"], row["seed"]) for row in rows})
     parts = [table]
