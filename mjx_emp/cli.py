@@ -23,6 +23,7 @@ from mjx_emp.algos.registry import all_presets
 from mjx_emp.algos.retired import RETIRED, Retired
 from mjx_emp.checks import LOOP_BOUNDS, check_levels
 from mjx_emp.commands import (
+    MAX_COVERAGE_DRAWS,
     MAX_EPISODES,
     MAX_FRAME_SIDE,
     MAX_FRAMES,
@@ -245,6 +246,8 @@ def check_eval(exp: EvalExperiment) -> None:
     if not 1 <= exp.episodes <= MAX_EPISODES:
         raise ConfigError(f"episodes: must be in [1, {MAX_EPISODES}]; got {exp.episodes}")
     check_seed(exp.seed)
+    if not 1 <= exp.coverage_draws <= MAX_COVERAGE_DRAWS:
+        raise ConfigError(f"coverage_draws: must be in [1, {MAX_COVERAGE_DRAWS}]; got {exp.coverage_draws}")
     check_distinct_runs(exp.run_dirs, "eval")
     if exp.out:
         store.output_target(Path(exp.out), "out")  # a place it cannot write is refused before the evaluation runs
@@ -260,7 +263,7 @@ def evaluate(exp: EvalExperiment) -> dict:
 
     out = Path(exp.out or Path(exp.run_dirs[0]) / "eval.json")
     report = evaluate_runs([Path(d) for d in exp.run_dirs], exp.seed, exp.episodes,
-                           command_line(["mjx-emp", *sys.argv[1:]]))
+                           command_line(["mjx-emp", *sys.argv[1:]]), exp.coverage_draws)
     store.write_atomically(out, json.dumps(report, indent=1), chosen=bool(exp.out))
     print(evaluation_text(report))
     print(f"wrote {out}")

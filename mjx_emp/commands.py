@@ -167,6 +167,9 @@ class EvalExperiment:
     to whole batches of num_envs)."""
     seed: int = 0
     """Seed of the evaluation goals and start states."""
+    coverage_draws: int = 1
+    """Draws of 48 skills that coverage is averaged over (its spread over draws is reported
+    beside it when more than one)."""
     out: str = ""
     """JSON output; empty means eval.json in the first run directory."""
 
@@ -303,6 +306,8 @@ MAX_FRAME_SIDE = 8192
 """The widest and tallest frame (OpenGL's offscreen buffers stop at 8192-16384 pixels)."""
 MAX_EPISODES = 10**7
 """The most evaluation episodes per level that `mjx-emp eval` rolls out."""
+MAX_COVERAGE_DRAWS = 1000
+"""The most draws of coverage skills an evaluation averages over."""
 
 
 def _check_tracking(tracking: Tracking) -> None:

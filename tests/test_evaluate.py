@@ -229,3 +229,24 @@ def test_a_label_without_a_fixed_colour_takes_one_no_other_label_has():
     spare = colour_of("GCRL 16x16 m", taken)
     assert to_hex(spare) not in {to_hex(c) for c in taken}  # hex and RGB forms of a colour are the same colour
     assert colour_of("HE k=1", []) == METHOD_COLOURS["HE k=1"]
+
+
+def test_coverage_over_several_draws_is_the_mean_of_each_draws_count_with_its_spread():
+    import jax
+
+    from mjx_emp.run.evaluate import COVERAGE_SKILLS, coverage_figures
+
+    def paths(key, skills):  # every skill of a draw walks 1-5 cells along x, the length set by the key
+        length = 1 + int(jax.random.randint(key, (), 0, 5))
+        positions = np.zeros((skills, 5, 2))
+        positions[:, :, 0] = np.arange(5) + 0.5
+        return positions, np.broadcast_to(np.arange(5) < length, (skills, 5))
+
+    key = jax.random.key(7)
+    one = coverage_figures(paths, key)
+    assert one == {"coverage_cells": coverage_cells(*paths(key, COVERAGE_SKILLS))}
+    several = coverage_figures(paths, key, draws=5)
+    counts = [coverage_cells(*paths(jax.random.fold_in(key, d), COVERAGE_SKILLS)) for d in range(5)]
+    assert several["coverage_draws"] == 5
+    assert several["coverage_cells"] == pytest.approx(np.mean(counts))
+    assert several["coverage_cells_std"] == pytest.approx(np.std(counts, ddof=1))

@@ -165,7 +165,7 @@ def test_a_failed_job_is_one_error_naming_its_row_and_log():
     from mjx_emp.run.sweep import Job, completed_jobs
 
     spec = load_spec(SMOKE)
-    job = Job(spec.name, spec.rows[0], "r", ("r-s0", "r-s1"), (0, 0), "runs/x/logs/he-k1.log", "mjx-emp sweep")
+    job = Job(spec.name, spec.rows[0], "r", ("r-s0", "r-s1"), (0, 0), 1, "runs/x/logs/he-k1.log", "mjx-emp sweep")
     failed = concurrent.futures.Future()
     failed.set_exception(FloatingPointError("a diverged critic"))
     with pytest.raises(JobFailed, match="row 'he-k1' failed .*a diverged critic.*runs/x/logs/he-k1.log"):

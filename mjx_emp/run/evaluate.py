@@ -29,7 +29,20 @@ COVERAGE_SKILLS = 48
 """Skills per coverage count, as in METRA's Ant figures."""
 
 
-def phase1_figures(trainer, state, key, episodes: int) -> dict:
+def coverage_figures(skill_paths, key, draws: int = 1) -> dict[str, Any]:
+    """METRA's coverage over ``draws`` draws of :data:`COVERAGE_SKILLS` greedy skills from the
+    initial state: ``coverage_cells`` (one draw's count with ``key``, or the mean over draws with
+    keys ``fold_in(key, d)``), and with several draws ``coverage_cells_std`` (sample std over
+    draws) and ``coverage_draws``. ``skill_paths(key, skills)`` gives one draw's paths."""
+    if draws == 1:
+        return {"coverage_cells": coverage_cells(*skill_paths(key, COVERAGE_SKILLS))}
+    counts = np.array([coverage_cells(*skill_paths(jax.random.fold_in(key, d), COVERAGE_SKILLS))
+                       for d in range(draws)], dtype=float)
+    return {"coverage_cells": float(counts.mean()), "coverage_cells_std": float(counts.std(ddof=1)),
+            "coverage_draws": draws}
+
+
+def phase1_figures(trainer, state, key, episodes: int, coverage_draws: int = 1) -> dict:
     """Per level: the goal-space box at the initial state and greedy goal-conditioned results;
     for the agent: METRA's coverage and the top box's volume times its greedy success.
 
@@ -39,7 +52,8 @@ def phase1_figures(trainer, state, key, episodes: int) -> dict:
     initial state only (``from_initial``) and from the buffer's states that chaining
     reached only (``chained``); at least ``episodes`` episodes each (whole rounds of
     ``num_envs``). Coverage counts the 1 m cells of goal space visited by
-    :data:`COVERAGE_SKILLS` greedy top-level skills from the initial state.
+    :data:`COVERAGE_SKILLS` greedy top-level skills from the initial state
+    (:func:`coverage_figures`, over ``coverage_draws`` draws).
     """
     rounds = max(1, math.ceil(episodes / trainer.cfg.num_envs))
     levels = []
@@ -50,18 +64,21 @@ def phase1_figures(trainer, state, key, episodes: int) -> dict:
                     for i, starts in enumerate(("initial", "chained"))}
         levels.append({"level": level, **box, **result, "episodes": rounds * trainer.cfg.num_envs,
                        "from_initial": by_start["initial"], "chained": by_start["chained"]})
-    paths = trainer.skill_paths(state, jax.random.fold_in(key, len(levels)), COVERAGE_SKILLS)
+    coverage = coverage_figures(lambda k, n: trainer.skill_paths(state, k, n), jax.random.fold_in(key, len(levels)),
+                                coverage_draws)
     top = levels[-1]
     return {"epoch": int(state.epoch), "env_steps": float(state.env_steps.value()), "levels": levels,
-            "coverage_cells": coverage_cells(*paths), "volume_x_success": top["volume"] * top["success"]}
+            **coverage, "volume_x_success": top["volume"] * top["success"]}
 
 
-def skill_figures(agent, state, key) -> dict:
+def skill_figures(agent, state, key, coverage_draws: int = 1) -> dict:
     """A flat skill learner's figures: METRA's coverage (:data:`COVERAGE_SKILLS` greedy skills
-    from the initial state) and, for DIAYN and HIDIO, the posterior's mean standard deviation."""
-    paths = agent.skill_paths(state, jax.random.fold_in(key, 0), COVERAGE_SKILLS)
+    from the initial state, over ``coverage_draws`` draws) and, for DIAYN and HIDIO, the
+    posterior's mean standard deviation."""
+    coverage = coverage_figures(lambda k, n: agent.skill_paths(state, k, n), jax.random.fold_in(key, 0),
+                                coverage_draws)
     return {"epoch": int(state.epoch), "env_steps": float(state.env_steps.value()), "algorithm": agent.method,
-            "coverage_cells": coverage_cells(*paths),
+            **coverage,
             "posterior_std": agent.posterior_std(state, jax.random.fold_in(key, 1))}
 
 
@@ -137,7 +154,7 @@ def phase2_of_run(run_dir: Path, key, episodes: int) -> dict | None:
     return None if loaded is None else phase2_figures(*loaded, key, episodes)
 
 
-def run_figures(run_dir: Path, key, episodes: int) -> dict[str, Any]:
+def run_figures(run_dir: Path, key, episodes: int, coverage_draws: int = 1) -> dict[str, Any]:
     """A run's figures from its newest good checkpoint, in one layout for every algorithm:
     ``levels`` (goal-space algorithms; else empty), ``top_volume`` and ``top_success`` (the top
     level's box at s0 and its greedy success; None without levels), ``flips`` (the fraction of the
@@ -145,16 +162,22 @@ def run_figures(run_dir: Path, key, episodes: int) -> dict[str, Any]:
     ``posterior_std`` (DIAYN and HIDIO) and ``phase2`` (None without RUN_DIR/phase2)."""
     agent, _, state = jobs.load_run(Path(run_dir))
     if algorithm_of(agent.cfg).skills == GOAL_SPACES:
-        figures = phase1_figures(agent, state, key, episodes)
+        figures = phase1_figures(agent, state, key, episodes, coverage_draws)
         top = figures["levels"][-1]
         figures = {**figures, "top_volume": top["volume"], "top_success": top["success"],
                    "flips": top.get("cut_short"), "posterior_std": None}
     else:
-        figures = skill_figures(agent, state, key)
+        figures = skill_figures(agent, state, key, coverage_draws)
         figures = {**figures, "levels": [], "top_volume": None, "top_success": None, "flips": None,
                    "volume_x_success": None}
     figures.pop("algorithm", None)
     return {**figures, "phase2": phase2_of_run(Path(run_dir), key, episodes)}
+
+
+def coverage_asked(draws: int) -> dict[str, int]:
+    """How an evaluation row records its coverage draws: nothing for the default one draw (so
+    rows of one draw read as they always have), ``coverage_draws`` otherwise."""
+    return {} if draws == 1 else {"coverage_draws": draws}
 
 
 def run_curves(run_dir: Path, lines: list[dict]) -> dict[str, list]:
@@ -180,7 +203,7 @@ def training_seconds(lines: list[dict]) -> float:
 
 
 def evaluation_row(run_dir: Path, seed: int = 0, episodes: int = 400, command: str | None = None,
-                   spec: str | None = None, row: str | None = None) -> dict[str, Any]:
+                   spec: str | None = None, row: str | None = None, coverage_draws: int = 1) -> dict[str, Any]:
     """The one evaluation of a run, as a row: what was trained (algorithm, env, seed, preset and
     overrides from the run's provenance), its figures (:func:`run_figures` with the evaluation
     key ``jax.random.key(seed)``, for phase 1 and phase 2 alike), its curves, and how it was made
@@ -189,7 +212,7 @@ def evaluation_row(run_dir: Path, seed: int = 0, episodes: int = 400, command: s
     run_dir = Path(run_dir)
     cfg = store.read_run_config(run_dir, "run_dir")
     trained = store.read_run_record(run_dir)
-    figures = run_figures(run_dir, jax.random.key(seed), episodes)
+    figures = run_figures(run_dir, jax.random.key(seed), episodes, coverage_draws)
     lines = store.read_metrics(run_dir)
     return {
         "schema": ROW_SCHEMA, "spec": spec, "row": row, "seed": int(cfg.seed), "run_dir": str(run_dir),
@@ -199,7 +222,7 @@ def evaluation_row(run_dir: Path, seed: int = 0, episodes: int = 400, command: s
         "figures": figures, "curves": run_curves(run_dir, lines),
         "train": {**trained, "env_steps": figures["env_steps"], "wall_s": training_seconds(lines),
                   "config": store.config_json(cfg)},
-        "evaluation": {"seed": seed, "episodes": episodes, **provenance(command)},
+        "evaluation": {"seed": seed, "episodes": episodes, **coverage_asked(coverage_draws), **provenance(command)},
     }
 
 
@@ -223,7 +246,8 @@ def row_figures(row: dict) -> dict:
     return {name: value for name, value in row.items() if name not in ("train", "evaluation")}
 
 
-def evaluate_runs(run_dirs: list[Path], seed: int = 0, episodes: int = 400, command: str | None = None) -> dict:
+def evaluate_runs(run_dirs: list[Path], seed: int = 0, episodes: int = 400, command: str | None = None,
+                  coverage_draws: int = 1) -> dict:
     """Each run's :func:`evaluation_row` (``runs``) and their aggregate over runs as seeds (mean,
     sample std, standard error): per level and for the agent (goal-space algorithms) or coverage
     and posterior std (flat skill learners), and phase 2 where runs have one. Runs of one
@@ -237,7 +261,7 @@ def evaluate_runs(run_dirs: list[Path], seed: int = 0, episodes: int = 400, comm
     rows = []
     for index, run_dir in enumerate(run_dirs, 1):
         print(f"evaluating {run_dir} ({index} of {len(run_dirs)}) ...", flush=True)
-        rows.append(evaluation_row(Path(run_dir), seed, episodes, command))
+        rows.append(evaluation_row(Path(run_dir), seed, episodes, command, coverage_draws=coverage_draws))
     figures = [row["figures"] for row in rows]
     latent = next(iter(algorithms.values())).skills != GOAL_SPACES
     report = {"runs": rows, **(_aggregate_skill_runs if latent else _aggregate_goal_space_runs)(figures)}

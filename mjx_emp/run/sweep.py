@@ -6,6 +6,7 @@ seeds, an env-step budget, the phase-2 task and the evaluation wanted::
     name = "smoke-point-mass"       # rows go to results/<name>.jsonl; default: the file's stem
     eval_seed = 0                   # evaluation key, as `mjx-emp eval --seed`
     eval_seed_per_run = false       # true: the run of seed s is evaluated with key eval_seed + s
+    coverage_draws = 1              # draws of 48 skills coverage is averaged over (`mjx-emp eval --coverage-draws`)
     episodes = 400                  # evaluation episodes per level (and phase-2 episodes)
 
     [[row]]
@@ -50,7 +51,7 @@ from mjx_emp.phase2.presets import PHASE2_PRESETS, phase2_preset_for
 from mjx_emp.run import store
 from mjx_emp.run.rows import RESULTS_DIR, append_row, read_rows
 
-SPEC_KEYS = ("name", "eval_seed", "eval_seed_per_run", "episodes", "runs", "slurm", "report", "row")
+SPEC_KEYS = ("name", "eval_seed", "eval_seed_per_run", "coverage_draws", "episodes", "runs", "slurm", "report", "row")
 ROW_KEYS = ("name", "preset", "seeds", "overrides", "max_env_steps", "phase2", "phase2_overrides", "episodes",
             "group_seeds")
 REPORT_KEYS = ("metrics", "baseline", "reps")
@@ -91,6 +92,8 @@ class Spec:
     """``mjx-emp report``'s defaults for this spec: ``metrics`` (a list) and ``baseline`` (a row name)."""
     eval_seed_per_run: bool = False
     """Each run's goals drawn with its own key, ``eval_seed`` plus its seed, instead of one key for all."""
+    coverage_draws: int = 1
+    """Draws of coverage skills each evaluation averages over."""
 
     def run_eval_seed(self, seed: int) -> int:
         """The evaluation key of the run of ``seed``."""
@@ -109,6 +112,7 @@ class Job:
     run_dirs: tuple[str, ...]
     eval_seeds: tuple[int, ...]
     """Each run's evaluation key, in the order of ``run_dirs``."""
+    coverage_draws: int
     log: str
     command: str
 
@@ -225,6 +229,7 @@ def load_spec(path: str | Path) -> Spec:
     if not isinstance(name, str) or not name or "/" in name:
         raise ConfigError(f"spec: name: must be a file-name-like string; got {name!r}")
     eval_seed = _integer(raw.get("eval_seed", 0), "spec", "eval_seed")
+    coverage_draws = _integer(raw.get("coverage_draws", 1), "spec", "coverage_draws", 1)
     per_run = raw.get("eval_seed_per_run", False)
     if not isinstance(per_run, bool):
         raise ConfigError(f"spec: eval_seed_per_run: must be true or false; got {per_run!r}")
@@ -257,7 +262,7 @@ def load_spec(path: str | Path) -> Spec:
     names = [row.name for row in checked]
     if "baseline" in report and report["baseline"] not in names:
         raise ConfigError(f"spec: report.baseline: {report['baseline']!r} is not a row; rows: {', '.join(names)}")
-    return Spec(name, str(path), eval_seed, tuple(checked), runs, slurm, report, per_run)
+    return Spec(name, str(path), eval_seed, tuple(checked), runs, slurm, report, per_run, coverage_draws)
 
 
 # ---- what is done -----------------------------------------------------------------------------
@@ -293,7 +298,7 @@ def stored_rows(results: Path, spec: Spec) -> dict[tuple[str, int], dict]:
     return {(row["row"], row["seed"]): row for row in read_rows(results) if row.get("spec") == spec.name}
 
 
-def row_is_current(stored: dict | None, row: Row, seed: int, eval_seed: int) -> bool:
+def row_is_current(stored: dict | None, row: Row, seed: int, eval_seed: int, coverage_draws: int = 1) -> bool:
     """Whether a stored row answers ``row``'s run of ``seed`` as the spec asks it now: the same
     resolved config, phase-2 config and evaluation."""
     if stored is None:
@@ -306,7 +311,8 @@ def row_is_current(stored: dict | None, row: Row, seed: int, eval_seed: int) -> 
     train, evaluation = stored.get("train", {}), stored.get("evaluation", {})
     return (train.get("config") == json.loads(json.dumps(store.config_json(seed_config(row, seed))))
             and task(stored.get("phase2_config")) == task(phase2)
-            and evaluation.get("seed") == eval_seed and evaluation.get("episodes") == row.episodes)
+            and evaluation.get("seed") == eval_seed and evaluation.get("episodes") == row.episodes
+            and evaluation.get("coverage_draws", 1) == coverage_draws)
 
 
 # ---- a job: train, phase 2, evaluate -----------------------------------------------------------
@@ -412,7 +418,7 @@ def run_job(job: Job) -> list[dict]:
         for run_dir, eval_seed in zip(job.run_dirs, job.eval_seeds):
             print(f"evaluating {run_dir} ...", flush=True)
             row = evaluation_row(Path(run_dir), eval_seed, job.row.episodes, job.command, job.spec,
-                                 job.row.name)
+                                 job.row.name, job.coverage_draws)
             row["evaluation"]["did"] = done
             rows.append(json.loads(json.dumps(row)))
         return rows
@@ -476,12 +482,13 @@ def plan(spec: Spec, runs_root: Path, results: Path, command: str) -> Plan:
     logs = runs_root / spec.name / "logs"
     for row in spec.rows:
         fresh = [(row.name, seed) for seed in row.seeds
-                 if row_is_current(stored.get((row.name, seed)), row, seed, spec.run_eval_seed(seed))]
+                 if row_is_current(stored.get((row.name, seed)), row, seed, spec.run_eval_seed(seed),
+                                  spec.coverage_draws)]
         current += fresh
         if len(fresh) < len(row.seeds):
             base = row_base(runs_root, spec, row)
             jobs.append(Job(spec.name, row, base, tuple(store.seed_run_dirs(base, row.seeds)),
-                            tuple(spec.run_eval_seed(seed) for seed in row.seeds),
+                            tuple(spec.run_eval_seed(seed) for seed in row.seeds), spec.coverage_draws,
                             str(logs / f"{row.name}.log"), command))
     return Plan(jobs, current, sum(len(row.seeds) for row in spec.rows))
 
