@@ -4,8 +4,8 @@ For each preset, with an empty cache directory (``XDG_CACHE_HOME`` pointed at a 
 one): `mjx-emp train PRESET --epochs 1` three times as a user runs it (one process each):
 cold (compiles and stores), warm (loads what the first run stored) and with
 ``--no-compile-cache``. Reports the process's wall time and the first epoch's ``seconds``
-(compile included) from its metrics. Prints a Markdown table and writes JSON (default
-``benchmarks/results/compile_cache_<backend>.json``).
+(compile included) from its metrics. Prints a Markdown table and appends one row per preset to
+``results/bench-compile-cache.jsonl`` (``--results``).
 """
 
 from __future__ import annotations
@@ -21,14 +21,21 @@ from pathlib import Path
 
 import tyro
 
+from mjx_emp.run.rows import append_row, benchmark_row
+
+sys.path.insert(0, str(Path(__file__).parent))
+from bench_rows import row_name  # noqa: E402
+
+SPEC = "bench-compile-cache"
+
 
 @dataclasses.dataclass
 class Args:
     """Compile-cache benchmark."""
 
     presets: tuple[str, ...] = ("point-mass-k1", "ant-field-k1-cpu", "metra-ant-field-cpu")
-    out: str = ""
-    """JSON output path; empty means benchmarks/results/compile_cache_<backend>.json."""
+    results: str = f"results/{SPEC}.jsonl"
+    """The results store the rows are appended to."""
 
 
 def one_run(preset: str, cache_home: Path, run_dir: Path, *flags: str) -> dict:
@@ -44,8 +51,6 @@ def one_run(preset: str, cache_home: Path, run_dir: Path, *flags: str) -> dict:
 
 
 def main(args: Args) -> None:
-    import jax
-
     rows = []
     for preset in args.presets:
         with tempfile.TemporaryDirectory() as tmp:
@@ -55,16 +60,14 @@ def main(args: Args) -> None:
                    "warm": one_run(preset, tmp / "cache", tmp / "warm"),
                    "off": one_run(preset, tmp / "cache", tmp / "off", "--no-compile-cache")}
         rows.append(row)
+        append_row(Path(args.results), benchmark_row(SPEC, row_name(row), row, preset=preset))
         print(json.dumps(row), flush=True)
     print("| preset | cold: wall s (first epoch s) | warm | cache off |")
     print("|---|---|---|---|")
     for r in rows:
         cells = [f"{r[k]['wall_s']:.1f} ({r[k]['first_epoch_s']:.1f})" for k in ("cold", "warm", "off")]
         print(f"| {r['preset']} | " + " | ".join(cells) + " |")
-    out = Path(args.out or f"benchmarks/results/compile_cache_{jax.default_backend()}.json")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"backend": jax.default_backend(), "rows": rows}, indent=1))
-    print(f"wrote {out}")
+    print(f"appended {len(rows)} rows to {args.results}")
 
 
 if __name__ == "__main__":

@@ -4,8 +4,8 @@ The test suite is mostly XLA compiling small programs, so the flags it compiles 
 length. For each flag set (rounds interleaved, so a slow spell of the machine hits every set
 alike) a new process with the persistent cache off builds a small two-level point-mass agent
 and runs its first epoch; JAX's own event durations split the time into tracing, lowering and
-the back end's compile. Prints a Markdown table and writes JSON (default
-``benchmarks/results/compile_flags_<backend>.json``).
+the back end's compile. Prints a Markdown table and appends one row per flag set to
+``results/bench-compile-flags.jsonl`` (``--results``).
 """
 
 from __future__ import annotations
@@ -20,7 +20,13 @@ from pathlib import Path
 
 import tyro
 
+from mjx_emp.run.rows import append_row, benchmark_row
 from mjx_emp.tables import markdown_table
+
+sys.path.insert(0, str(Path(__file__).parent))
+from bench_rows import numbered_names  # noqa: E402
+
+SPEC = "bench-compile-flags"
 
 FLAG_SETS = {
     "default": "",
@@ -30,6 +36,9 @@ FLAG_SETS = {
         "--xla_backend_optimization_level=0 --xla_cpu_use_fusion_emitters=false --xla_cpu_use_thunk_runtime=false"
     ),
 }
+
+ROW_NAMES = numbered_names(FLAG_SETS)
+"""Each flag set's row name: its place in ``FLAG_SETS`` (``all``, ``all#2``, ...)."""
 
 CHILD = r"""
 import dataclasses, json, time
@@ -63,8 +72,8 @@ class Args:
     """Which flag sets to time (names of ``FLAG_SETS``)."""
     rounds: int = 2
     """Fresh processes per flag set, interleaved."""
-    out: str = ""
-    """JSON path; empty: benchmarks/results/compile_flags_<backend>.json."""
+    results: str = f"results/{SPEC}.jsonl"
+    """The results store the rows are appended to."""
     beside: str = "nothing"
     """What else ran on the machine (recorded with the result)."""
 
@@ -92,21 +101,21 @@ def main(args: Args) -> None:
     backend = next(iter(runs.values()))[0]["backend"]
     rows = []
     for name, timings in runs.items():
-        row = {"flags": name, "xla_flags": FLAG_SETS[name], "rounds": len(timings)}
+        row = {"flags": name, "xla_flags": FLAG_SETS[name], "rounds": len(timings), "backend": backend,
+               "beside": args.beside}
         for key in ("total_s", "trace_s", "lower_s", "backend_compile_s"):
             values = [t[key] for t in timings]
             row[key] = statistics.fmean(values)
             row[key + "_each"] = values
         rows.append(row)
+        append_row(Path(args.results), benchmark_row(SPEC, ROW_NAMES[name], row))
     baseline = rows[0]["backend_compile_s"]
     print(markdown_table(
         ["flags", "first epoch (s)", "back-end compile (s)", "ratio to the first row"],
         [[row["flags"], f"{row['total_s']:.1f}", f"{row['backend_compile_s']:.1f}",
           f"{row['backend_compile_s'] / baseline:.2f}"] for row in rows],
     ))
-    out = Path(args.out or f"benchmarks/results/compile_flags_{backend}.json")
-    out.write_text(json.dumps({"backend": backend, "beside": args.beside, "rows": rows}, indent=1) + "\n")
-    print("wrote", out)
+    print(f"appended {len(rows)} rows ({backend}) to {args.results}")
 
 
 if __name__ == "__main__":

@@ -1,5 +1,5 @@
 """One prepared check for a GPU machine: everything the paper-scale path needs measured in one
-command, written to JSON step by step (a step that fails is recorded and the next one runs;
+command, its rows appended step by step (a step that fails is recorded and the next one runs;
 ``--steps`` picks the steps and their order when a lease is short).
 
 Steps, each on every MJX backend that can run here (``jax``; ``warp`` where mujoco-warp and a
@@ -17,14 +17,19 @@ seeds, ``point-mass-k1`` for the training steps) so that the script can be teste
 in about a minute and cannot rot; its figures mean nothing. Steps not started when
 ``--budget-s`` has passed are recorded as skipped. See docs/gpu.md.
 
-    python benchmarks/device_check.py --out benchmarks/results/device_check_gpu.json
+Each measured setting is a row of ``results/gpu-sessions.jsonl`` (``--results``; a dry run's go
+to ``results/gpu-sessions-dry-run.jsonl``), named ``SESSION/check/STEP/...`` (a step on another
+backend than jax: ``SESSION/check/IMPL/STEP/...``; one that did not run:
+``SESSION/check/not_run/...`` with the reason). ``SESSION`` (``--session``) defaults to
+``gpu_session_<device model>``, such as ``gpu_session_h200``.
+
+    python benchmarks/device_check.py --results /tmp/out/check.jsonl
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
-import platform
 import sys
 import time
 import traceback
@@ -37,14 +42,19 @@ sys.path.insert(0, str(Path(__file__).parent))  # the sibling benchmarks whose m
 
 import rollout as rollout_benchmark  # noqa: E402
 import seeds as seeds_benchmark  # noqa: E402
+from bench_rows import RowNames, session_name  # noqa: E402
 
 from mjx_emp.algos.registry import all_presets, make_agent  # noqa: E402
 from mjx_emp.envs.env import check_backend, make_env  # noqa: E402
 from mjx_emp.errors import ConfigError  # noqa: E402
 from mjx_emp.run.preflight import available_bytes, state_bytes, working_set_bytes  # noqa: E402
+from mjx_emp.run.rows import RESULTS_DIR, append_row, benchmark_row  # noqa: E402
 from mjx_emp.run.seeds import SeedGroup  # noqa: E402
 
 PRESET = "ant-field-k1-paper-small"
+SPEC = "gpu-sessions"
+DRY_RUN_SPEC = "gpu-sessions-dry-run"
+"""A dry run's rows: kept apart from the measured ones."""
 
 
 @dataclasses.dataclass
@@ -60,8 +70,10 @@ class Args:
     """Which steps run, in this order (a short lease puts the ones it needs most first)."""
     budget_s: float = 420.0
     """Start no new step after this many seconds (one command may run 10 minutes)."""
-    out: str = ""
-    """JSON output; empty means benchmarks/results/device_check_<backend>.json."""
+    results: str = ""
+    """The results store the rows are appended to; empty means results/<spec>.jsonl."""
+    session: str = ""
+    """The session's name, the first part of every row name; empty: gpu_session_<device model>."""
 
 
 def sizes(args: Args) -> dict:
@@ -134,16 +146,30 @@ def memory_step(impl: str, plan: dict) -> dict:
 STEPS = {"rollout": rollout_step, "train": train_step, "seeds": seeds_step, "memory": memory_step}
 
 
-def main(args: Args) -> dict:
+def step_rows(spec: str, session: str, entry: dict, names: RowNames) -> list[dict]:
+    """One step's rows: one per setting it measured, or one saying why it did not run."""
+    step, impl = entry["step"], entry["impl"]
+    if "result" not in entry:
+        record = {"step": step, "impl": impl, "why": entry.get("skipped") or entry.get("error"),
+                  **{key: entry[key] for key in ("traceback",) if key in entry}}
+        return [benchmark_row(spec, names(record, f"{session}/check/not_run"), record)]
+    group = f"{session}/check/{step}" if impl == "jax" else f"{session}/check/{impl}/{step}"
+    result = entry["result"]
+    return [benchmark_row(spec, names(record, group), {**record, "step": step, "step_s": entry["seconds"]})
+            for record in (result if isinstance(result, list) else [result])]
+
+
+def main(args: Args) -> list[dict]:
     unknown = [name for name in args.steps if name not in STEPS]
     if unknown:
         print(f"--steps: unknown {unknown}; allowed values are {sorted(STEPS)}", file=sys.stderr)
         raise SystemExit(2)
-    out = Path(args.out or f"benchmarks/results/device_check_{jax.default_backend()}.json")
-    out.parent.mkdir(parents=True, exist_ok=True)
+    spec = DRY_RUN_SPEC if args.dry_run else SPEC
+    results = Path(args.results or Path(RESULTS_DIR) / f"{spec}.jsonl")
+    session = args.session or session_name(jax.devices()[0].device_kind)
     plan = sizes(args)
-    report = {"backend": jax.default_backend(), "devices": [str(d) for d in jax.devices()],
-              "machine": platform.processor() or platform.machine(), "dry_run": args.dry_run, "steps": []}
+    names = RowNames()
+    rows = []
     start = time.perf_counter()
     for impl in args.impls:
         problem = backend_problem(impl)
@@ -162,13 +188,12 @@ def main(args: Args) -> dict:
                     entry["error"] = f"{type(err).__name__}: {err}"
                     entry["traceback"] = traceback.format_exc(limit=8)
                 entry["seconds"] = time.perf_counter() - began
-            report["steps"].append(entry)
+            for row in step_rows(spec, session, entry, names):
+                append_row(results, row)
+                rows.append(row)
             print(json.dumps({k: v for k, v in entry.items() if k != "traceback"})[:400], flush=True)
-            out.write_text(json.dumps(report, indent=1))
-    report["total_s"] = time.perf_counter() - start
-    out.write_text(json.dumps(report, indent=1))
-    print(f"wrote {out} ({report['total_s']:.0f} s)")
-    return report
+    print(f"appended {len(rows)} rows to {results} ({time.perf_counter() - start:.0f} s)")
+    return rows
 
 
 if __name__ == "__main__":

@@ -4,11 +4,13 @@
 # the training rows (ROWS, default ant-field-k1-paper-small and half-cheetah-field-k1-paper-small) side by side for the
 # time that is left, and, when PHASE2_S > 0, each row's phase 2 and `mjx-emp eval` in the last PHASE2_S
 # seconds. Everything lands in $OUT: versions.txt (the settings, the GPU, the packages), smoke.log,
-# device_check_gpu.json, check.log, and per row <preset>.log, <preset>.metrics.jsonl, <preset>.skills.tar
+# check.jsonl (the check's rows), check.log, and per row <preset>.log, <preset>.metrics.jsonl, <preset>.skills.tar
 # (its skills export: phase 2 and eval can go on from it on another machine), <preset>.phase2.jsonl
 # and <preset>.eval.json. With SEEDS (e.g. "0 1 2 3") each row trains those seeds in one vmapped program
 # (`--seeds`), and every per-row file above is per run, <preset>-s<seed>, but for the log and the metrics,
-# which travel inside each run's skills export (a lease returns at most 8 files). See docs/gpu.md.
+# which travel inside each run's skills export (a lease returns at most 8 files). Back home,
+# `python benchmarks/gpu_summary.py $OUT` appends the session's rows to results/gpu-sessions.jsonl.
+# SESSION names them (default gpu_session_<GPU model>, such as gpu_session_h200). See docs/gpu.md.
 #
 #   OUT=/tmp/out TOTAL_S=560 CHECK_S=300 bash benchmarks/device_session.sh
 #   OUT=/tmp/out TOTAL_S=540 CHECK_S=0 PHASE2_S=200 ROWS=ant-field-k1-paper-small \
@@ -27,6 +29,7 @@ ROWS=${ROWS:-ant-field-k1-paper-small half-cheetah-field-k1-paper-small}  # pres
 TRAIN_FLAGS=${TRAIN_FLAGS:-}  # config flags for every row, e.g. --solver-iterations 4
 SEEDS=${SEEDS:-}  # seeds trained together in each row's one program; empty: the preset's own seed
 DRY=${DRY:-0}
+SESSION=${SESSION:-}  # the first part of the session's row names; empty: gpu_session_<GPU model>
 RUNS=${RUNS:-/tmp/runs}  # the training rows' run directories (their checkpoints stay on the machine)
 PY=${PYTHON:-python3}
 mkdir -p "$OUT"
@@ -66,7 +69,7 @@ print("smoke epoch", agent.metrics(*agent.train_epoch(agent.init()), 1.0)["env_s
 PY
 }
 printf '%s\n' "ROWS=$ROWS" "TRAIN_FLAGS=$TRAIN_FLAGS" "SEEDS=$SEEDS" "TOTAL_S=$TOTAL_S" "CHECK_S=$CHECK_S" \
-  "PHASE2_S=$PHASE2_S" "DRY=$DRY" > "$OUT/versions.txt"  # the settings first, then the machine
+  "PHASE2_S=$PHASE2_S" "DRY=$DRY" "SESSION=$SESSION" > "$OUT/versions.txt"  # the settings first, then the machine
 nvidia-smi >> "$OUT/versions.txt" 2>&1
 if ! smoke >> "$OUT/versions.txt" 2> "$OUT/smoke.log"; then
   echo "smoke test failed with the machine's packages; trying the pinned flax/optax/orbax" | tee -a "$OUT/smoke.log"
@@ -77,8 +80,9 @@ fi
 cat "$OUT/versions.txt"
 
 if [ "$CHECK_S" -gt 0 ]; then
-  check_args=(--out "$OUT/device_check_gpu.json" --budget-s $((CHECK_S - 120)) --steps memory train rollout seeds)
+  check_args=(--results "$OUT/check.jsonl" --budget-s $((CHECK_S - 120)) --steps memory train rollout seeds)
   [ "$DRY" = 1 ] && check_args+=(--dry-run)
+  [ -n "$SESSION" ] && check_args+=(--session "$SESSION")
   timeout --signal=KILL "$CHECK_S" $PY benchmarks/device_check.py "${check_args[@]}" 2>&1 \
     | tee "$OUT/check.log" | grep -v '^W'
 fi

@@ -1,21 +1,36 @@
 """Summarise one GPU session's files (what ``benchmarks/device_session.sh`` leaves in $OUT):
 the session's settings, the prepared check's figures, each training row's epochs and each row's
-phase 2, as JSON and Markdown tables.
+phase 2, as Markdown tables and rows of ``results/gpu-sessions.jsonl`` (``--results``).
 
-    python benchmarks/gpu_summary.py benchmarks/results/gpu_h200 --out benchmarks/results/gpu_session_h200.json
+The check's rows (``check.jsonl``, written on the GPU machine by ``benchmarks/device_check.py``)
+are appended as they are; each training row and each phase 2 becomes a row
+``SESSION/training/RUN`` or ``SESSION/phase2/RUN``. ``SESSION`` is the session's ``SESSION=``
+setting, else ``gpu_session_<GPU model>`` as the check names its rows (``--name`` overrides).
+A dry run's rows (``DRY=1``) go to ``results/gpu-sessions-dry-run.jsonl``.
+
+    python benchmarks/gpu_summary.py /tmp/out
 """
 
 from __future__ import annotations
 
 import dataclasses
-import json
 import re
 import statistics
+import sys
 from pathlib import Path
 
 import tyro
 
+from mjx_emp.run.rows import RESULTS_DIR, append_row, benchmark_row, read_rows
 from mjx_emp.run.store import parse_metrics, read_metrics_text, warn_metrics
+
+sys.path.insert(0, str(Path(__file__).parent))
+from bench_rows import row_name, session_name  # noqa: E402
+
+SPEC = "gpu-sessions"
+DRY_RUN_SPEC = "gpu-sessions-dry-run"
+CHECK_ROWS = "check.jsonl"
+"""The check's rows in a session folder (``device_check.py --results``)."""
 
 
 @dataclasses.dataclass
@@ -23,8 +38,10 @@ class Args:
     """One session folder in, one summary out."""
 
     session: tyro.conf.Positional[str]
-    out: str = ""
-    """JSON output; empty prints only."""
+    results: str = ""
+    """The results store the rows are appended to; empty means results/<spec>.jsonl."""
+    name: str = ""
+    """The session's name, the first part of its rows' names; empty: see the module's text."""
 
 
 def read_versions(path: Path) -> dict:
@@ -53,18 +70,13 @@ def read_epochs(path: Path) -> list[dict]:
     return [entry for _, entry in valid]
 
 
-def check_rows(session: Path) -> dict:
-    """Every step the prepared check finished, from each ``device_check*.json`` of the session."""
-    rows: dict = {"rollout": [], "train": [], "seeds": [], "memory": [], "not_run": []}
-    for path in sorted(session.glob("device_check*.json")):
-        for step in json.loads(path.read_text())["steps"]:
-            if "result" in step:
-                result = step["result"]
-                rows[step["step"]] += result if isinstance(result, list) else [result]
-            else:
-                rows["not_run"].append({"file": path.name, "step": step["step"], "impl": step["impl"],
-                                        "why": step.get("skipped") or step.get("error")})
-    return rows
+def check_figures(rows: list[dict]) -> dict:
+    """The check's figures by step (``not_run``: the steps it did not finish, each with why)."""
+    steps: dict = {"rollout": [], "train": [], "seeds": [], "memory": [], "not_run": []}
+    for row in rows:
+        figures = row["figures"]
+        steps["not_run" if "why" in figures else figures["step"]].append(figures)
+    return steps
 
 
 def training_row(path: Path) -> dict:
@@ -129,14 +141,23 @@ def markdown(summary: dict) -> str:
 
 def main(args: Args) -> dict:
     session = Path(args.session)
-    summary = {"session": str(session), "settings": read_settings(session / "versions.txt"),
-               **read_versions(session / "versions.txt"), "check": check_rows(session),
+    settings = read_settings(session / "versions.txt")
+    machine = read_versions(session / "versions.txt")
+    checked = read_rows(session / CHECK_ROWS)
+    summary = {"session": str(session), "settings": settings, **machine, "check": check_figures(checked),
                "training": [training_row(path) for path in sorted(session.glob("*.metrics.jsonl"))],
                "phase2": [phase2_row(path) for path in sorted(session.glob("*.phase2.jsonl"))]}
     print(markdown(summary))
-    if args.out:
-        Path(args.out).write_text(json.dumps(summary, indent=1))
-        print(f"wrote {args.out}")
+    spec = DRY_RUN_SPEC if settings.get("DRY") == "1" else SPEC
+    results = Path(args.results or Path(RESULTS_DIR) / f"{spec}.jsonl")
+    name = args.name or settings.get("SESSION") or session_name(machine.get("gpu") or "cpu")
+    rows = [] if results.resolve() == (session / CHECK_ROWS).resolve() else list(checked)  # measured on the GPU
+    about = {"session": str(session), **machine, "settings": settings}
+    rows += [benchmark_row(spec, row_name(record, f"{name}/{group}"), {**record, **about})
+             for group in ("training", "phase2") for record in summary[group]]
+    for row in rows:
+        append_row(results, row)
+    print(f"appended {len(rows)} rows to {results}")
     return summary
 
 

@@ -7,7 +7,8 @@ share (the preflight's HEADROOM) of an 80 GB and a 141 GB GPU. ``--epoch PRESET`
 one real epoch of a phase-1 preset at its full shape on this machine and reports compile
 and epoch time, peak resident memory and the metrics line (on a 2-core CPU this takes long:
 4096 environments); ``--phase2-epoch PRESET`` does the same for a phase-2 preset. Prints a
-Markdown table and writes JSON (default ``benchmarks/results/paper_shapes_<backend>.json``).
+Markdown table and appends one row per preset, compiled epoch (``compiled_epochs/PRESET``) and
+real epoch (``full_shape_epochs/PRESET``) to ``results/bench-paper-shapes.jsonl`` (``--results``).
 
     python benchmarks/paper_shapes.py
     python benchmarks/paper_shapes.py --epoch ant-field-k1-paper-small --phase2-epoch reach-ant-field-k1-paper-small
@@ -16,9 +17,8 @@ Markdown table and writes JSON (default ``benchmarks/results/paper_shapes_<backe
 from __future__ import annotations
 
 import dataclasses
-import json
-import platform
 import resource
+import sys
 import time
 from pathlib import Path
 from typing import Any, Callable
@@ -32,6 +32,12 @@ from mjx_emp.algos.registry import make_agent
 from mjx_emp.phase2.build import make_phase2_trainer
 from mjx_emp.phase2.presets import PHASE2_PRESETS
 from mjx_emp.run.preflight import HEADROOM, state_bytes, tree_bytes, working_set_bytes
+from mjx_emp.run.rows import append_row, benchmark_row
+
+sys.path.insert(0, str(Path(__file__).parent))
+from bench_rows import RowNames  # noqa: E402
+
+SPEC = "bench-paper-shapes"
 
 GPUS = {"80 GB": 80e9, "141 GB": 141e9}
 """Device memories the shapes are held against (an A100/H100 80 GB; an H200)."""
@@ -49,8 +55,8 @@ class Args:
     phase2_epoch: tuple[str, ...] = ()
     """Phase-2 presets to run one real epoch of at full shape, over freshly initialised (untrained)
     skills of their phase-1 preset: the shapes and the work are a trained run's."""
-    out: str = ""
-    """JSON output path; empty means benchmarks/results/paper_shapes_<backend>.json."""
+    results: str = f"results/{SPEC}.jsonl"
+    """The results store the rows are appended to."""
 
 
 def fits(state: int, work: int) -> dict[str, bool]:
@@ -136,16 +142,25 @@ def gib(count: float) -> str:
 def main(args: Args) -> None:
     table1 = [name for name in PRESETS if (parse_preset_name(name).size or "").startswith("paper")]
     table2 = [name for name, (_, phase1, _) in PHASE2_PRESETS.items() if phase1 in table1]
+    names = RowNames()
+
+    def stored(record: dict, group: str = "") -> dict:
+        """``record``, appended as a row (with the preflight's headroom and the GPUs it is held against)."""
+        figures = {**record, "headroom": HEADROOM, "gpus": GPUS}
+        append_row(Path(args.results), benchmark_row(SPEC, names(record, group), figures, preset=record["preset"],
+                                                     env_steps=record.get("env_steps")))
+        return record
+
     rows = []
     for name in table1:
-        rows.append(phase1_row(name))
+        rows.append(stored(phase1_row(name)))
         print(f"{name}: {gib(rows[-1]['state_bytes'])} GiB state", flush=True)
     for name in table2:
-        rows.append(phase2_row(name))
+        rows.append(stored(phase2_row(name)))
         print(f"{name} (phase 2): {gib(rows[-1]['state_bytes'])} GiB state", flush=True)
-    compiled = [compiled_epoch(name) for name in args.compile]
-    epochs = [full_shape_epoch(name) for name in args.epoch]
-    epochs += [full_shape_phase2_epoch(name) for name in args.phase2_epoch]
+    compiled = [stored(compiled_epoch(name), "compiled_epochs") for name in args.compile]
+    epochs = [stored(full_shape_epoch(name), "full_shape_epochs") for name in args.epoch]
+    epochs += [stored(full_shape_phase2_epoch(name), "full_shape_epochs") for name in args.phase2_epoch]
     print("\n| preset | phase | envs | state (GiB) | epoch working set (GiB) | fits 80 GB | fits 141 GB |")
     print("|---|---|---|---|---|---|---|")
     for r in rows:
@@ -160,13 +175,7 @@ def main(args: Args) -> None:
     for e in epochs:
         print(f"{e['preset']} (phase {e['phase']}): init {e['init_s']:.0f} s, first epoch {e['first_epoch_s']:.0f} s, "
               f"peak RSS {gib(e['peak_rss_bytes'])} GiB")
-    out = Path(args.out or f"benchmarks/results/paper_shapes_{jax.default_backend()}.json")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"backend": jax.default_backend(), "machine": platform.processor() or platform.machine(),
-                               "headroom": HEADROOM, "gpus": GPUS, "rows": rows, "compiled_epochs": compiled,
-                               "full_shape_epochs": epochs},
-                              indent=1))
-    print(f"wrote {out}")
+    print(f"appended {len(rows) + len(compiled) + len(epochs)} rows to {args.results}")
 
 
 if __name__ == "__main__":

@@ -14,14 +14,15 @@ training). Reported:
   an open-loop gait that repeats two random actions (random search over 300 gaits in
   MuJoCo C; an Ant gait that flips is discarded).
 
-Prints a Markdown table and writes JSON (default ``benchmarks/results/robot_models_<backend>.json``).
+Prints a Markdown table and appends one row per robot to ``results/bench-robot-models.jsonl``
+(``--results``).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
-import platform
+import sys
 import time
 from pathlib import Path
 
@@ -33,20 +34,30 @@ import tyro
 
 from mjx_emp.envs.env import make_env
 from mjx_emp.run.evaluate import COVERAGE_SKILLS
+from mjx_emp.run.rows import append_row, benchmark_row
+
+sys.path.insert(0, str(Path(__file__).parent))
+from bench_rows import numbered_names  # noqa: E402
+
+SPEC = "bench-robot-models"
+ROBOTS = ("ant_field", "half_cheetah_field")
+ROW_NAMES = numbered_names(ROBOTS)
+"""Each robot's row name (``all``, ``all#2``: the robot is no naming field of its record); any
+other robot's row is named after it."""
 
 
 @dataclasses.dataclass
 class Args:
     """Robot plausibility benchmark."""
 
-    robots: tuple[str, ...] = ("ant_field", "half_cheetah_field")
+    robots: tuple[str, ...] = ROBOTS
     batch_size: int = 256
     actions: int = 100
     seed: int = 0
     runs: tuple[str, ...] = ()
     """ROBOT=RUN_DIR pairs: trained runs whose greedy skills are measured too."""
-    out: str = ""
-    """JSON output path; empty means benchmarks/results/robot_models_<backend>.json."""
+    results: str = f"results/{SPEC}.jsonl"
+    """The results store the rows are appended to."""
 
 
 def torso_up_z(data) -> jax.Array:
@@ -164,15 +175,10 @@ def main(args: Args) -> None:
         if robot in trained:
             row["trained"] = measure_trained(trained[robot], args.seed)
         rows.append(row)
+        append_row(Path(args.results), benchmark_row(SPEC, ROW_NAMES.get(robot, robot), row))
         print(json.dumps(row), flush=True)
-    table = markdown(rows)
-    print(table)
-    backend = jax.default_backend()
-    out = Path(args.out or Path(__file__).parent / "results" / f"robot_models_{backend}.json")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"backend": backend, "machine": platform.processor() or platform.machine(),
-                               "jax": jax.__version__, "rows": rows}, indent=1))
-    print(f"wrote {out}")
+    print(markdown(rows))
+    print(f"appended {len(rows)} rows to {args.results}")
 
 
 if __name__ == "__main__":

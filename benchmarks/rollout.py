@@ -9,17 +9,18 @@ For each domain, batch size B and number of levels k, measured in the same proce
   ratio is the median over rounds of that round's ratio (so drifts of a shared machine
   cancel), and each absolute figure the median of ``--repeats`` calls.
 
-Prints a Markdown table and writes JSON (default ``benchmarks/results/rollout_<backend>.json``).
+Prints Markdown tables and appends one row per (domain, solver iterations, B, k), and per k of
+the hand-over comparison, to ``results/<spec>.jsonl`` (``--spec``, default bench-rollout;
+``--results``).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import itertools
-import json
 import math
-import platform
 import statistics
+import sys
 import time
 from pathlib import Path
 
@@ -31,8 +32,20 @@ from mjx_emp.envs.env import make_env
 from mjx_emp.envs.mjx_quiet import mjx
 from mjx_emp.envs.scripted import bounded_hop, point_mass_pd
 from mjx_emp.nets import mlp_agent
-from mjx_emp.rollout.hierarchy import ROLLOUT_TRACE, Hierarchy, default_start, jit_init_rollout, jit_rollout
+from mjx_emp.rollout.hierarchy import (
+    ROLLOUT_TRACE,
+    Hierarchy,
+    default_start,
+    jit_init_rollout,
+    jit_rollout,
+)
+from mjx_emp.run.rows import RESULTS_DIR, append_row, benchmark_row
 from mjx_emp.tracing import traces
+
+sys.path.insert(0, str(Path(__file__).parent))
+from bench_rows import RowNames  # noqa: E402
+
+SPEC = "bench-rollout"
 
 # Paper-style per-level settings (Ant Field XL, k=3): n=[20,10,10], eps=[0.6,1.2,2.4].
 N_PER_LEVEL = (20, 10, 10)
@@ -56,8 +69,10 @@ class Args:
     ``--solver-iterations 0 4`` gives the cost of the accurate-physics presets)."""
     handover_steps: int = 400
     """Primitive actions per call in the hand-over comparison (0 skips it)."""
-    out: str = ""
-    """JSON output path; empty means benchmarks/results/rollout_<backend>.json."""
+    spec: str = SPEC
+    """The rows' spec name (bench-rollout-solver: the solver-iterations comparison)."""
+    results: str = ""
+    """The results store the rows are appended to; empty means results/<spec>.jsonl."""
 
 
 def _timed(fn, *args):
@@ -222,7 +237,8 @@ def handover_markdown(rows: list[dict]) -> str:
 
 
 def main(args: Args) -> None:
-    backend = jax.default_backend()
+    results = Path(args.results or Path(RESULTS_DIR) / f"{args.spec}.jsonl")
+    names = RowNames()
     rows = []
     for name, iterations in itertools.product(args.envs, args.solver_iterations):
         env = make_env(name, solver_iterations=iterations)
@@ -230,6 +246,7 @@ def main(args: Args) -> None:
         for batch in args.batch_sizes:
             for row in bench_group(env, batch, steps, args):
                 rows.append(row)
+                append_row(results, benchmark_row(args.spec, names(row), row))
                 print(
                     f"{name} iterations={row['solver_iterations']} B={batch} k={row['k']}: "
                     f"raw {row['raw_physics_steps_per_s']:,.0f}/s, "
@@ -238,24 +255,12 @@ def main(args: Args) -> None:
                     f"compile {row['compile_s_hier']:.1f}s",
                     flush=True,
                 )
-    table = markdown(rows)
-    print(table)
+    print(markdown(rows))
     handover = bench_handover(args) if args.handover_steps else []
-    handover_table = handover_markdown(handover)
-    print(handover_table)
-    out = Path(args.out or Path(__file__).parent / "results" / f"rollout_{backend}.json")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    meta = {
-        "backend": backend,
-        "devices": [str(d) for d in jax.devices()],
-        "machine": platform.machine(),
-        "jax": jax.__version__,
-    }
-    out.write_text(json.dumps(
-        {"meta": meta, "rows": rows, "table": table, "handover": handover, "handover_table": handover_table},
-        indent=1,
-    ))
-    print(f"wrote {out}")
+    for row in handover:
+        append_row(results, benchmark_row(args.spec, names(row, "handover"), row))
+    print(handover_markdown(handover))
+    print(f"appended {len(rows) + len(handover)} rows to {results}")
 
 
 if __name__ == "__main__":

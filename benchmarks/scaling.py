@@ -8,7 +8,8 @@ GPUs; the run is split into D shards (same total environments), one per device. 
 is the env steps of a warm epoch over its median wall time (``--repeats`` epochs after the
 compiling one). Forced CPU devices share the machine's cores, so on a CPU they measure the
 cost of the split (collectives, per-device programs), not a speed-up. Prints a Markdown
-table and writes JSON (default ``benchmarks/results/scaling_<backend>.json``).
+table and appends one row per device count (``devices/devicesD``) and seed count
+(``seeds/seedsS``) to ``results/bench-scaling.jsonl`` (``--results``).
 """
 
 from __future__ import annotations
@@ -24,6 +25,13 @@ from pathlib import Path
 
 import tyro
 
+from mjx_emp.run.rows import append_row, benchmark_row
+
+sys.path.insert(0, str(Path(__file__).parent))
+from bench_rows import row_name  # noqa: E402
+
+SPEC = "bench-scaling"
+
 
 @dataclasses.dataclass
 class Args:
@@ -33,8 +41,8 @@ class Args:
     devices: tuple[int, ...] = (1, 2, 4)
     seeds: tuple[int, ...] = (1, 4, 8)
     repeats: int = 3
-    out: str = ""
-    """JSON output path; empty means benchmarks/results/scaling_<backend>.json."""
+    results: str = f"results/{SPEC}.jsonl"
+    """The results store the rows are appended to."""
 
 
 def total_steps(counter) -> int:
@@ -103,21 +111,22 @@ def main(args: Args) -> None:
                 f"print(json.dumps(measure_devices({args.preset!r}, {count}, {args.repeats})))")
         result = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
         device_rows.append(json.loads(result.stdout.strip().splitlines()[-1]))
+        append_row(Path(args.results), benchmark_row(SPEC, row_name(device_rows[-1], "devices"), device_rows[-1],
+                                                     preset=args.preset))
         print(json.dumps(device_rows[-1]), flush=True)
-    seed_rows = [measure_seeds(args.preset, count, args.repeats) for count in args.seeds]
-    for row in seed_rows:
-        print(json.dumps(row), flush=True)
+    seed_rows = []
+    for count in args.seeds:
+        seed_rows.append(measure_seeds(args.preset, count, args.repeats))
+        append_row(Path(args.results), benchmark_row(SPEC, row_name(seed_rows[-1], "seeds"), seed_rows[-1],
+                                                     preset=args.preset))
+        print(json.dumps(seed_rows[-1]), flush=True)
     print(f"| {args.preset} | env steps/s | relative to 1 |")
     print("|---|---|---|")
     for rows, key, name in ((device_rows, "devices", "devices"), (seed_rows, "seeds", "seeds")):
         for row in rows:
             print(f"| {row[key]} {name} | {row['env_steps_per_s']:.3g} | "
                   f"{row['env_steps_per_s'] / rows[0]['env_steps_per_s']:.2f}x |")
-    out = Path(args.out or f"benchmarks/results/scaling_{jax.default_backend()}.json")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"backend": jax.default_backend(), "preset": args.preset, "cpu_count": os.cpu_count(),
-                               "devices": device_rows, "seeds": seed_rows}, indent=1))
-    print(f"wrote {out}")
+    print(f"appended {len(device_rows) + len(seed_rows)} rows to {args.results}")
 
 
 if __name__ == "__main__":

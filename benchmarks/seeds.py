@@ -6,15 +6,16 @@ For each preset and seed count S, in one process, side by side:
 - speed-up = S x (one seed's warm epoch) / (the group's warm epoch): the steady-state gain
   over running the S seeds one after another; and for a whole run of ``--epochs`` epochs,
   S x (compile + epochs x epoch) over (group compile + epochs x group epoch).
-Prints a Markdown table and writes JSON (default ``benchmarks/results/seeds_<backend>.json``).
+Prints a Markdown table and appends one row per (preset, S) to ``results/bench-seeds.jsonl``
+(``--results``).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
-import platform
 import statistics
+import sys
 import time
 from pathlib import Path
 
@@ -22,7 +23,13 @@ import jax
 import tyro
 
 from mjx_emp.algos.registry import all_presets, make_agent
+from mjx_emp.run.rows import append_row, benchmark_row
 from mjx_emp.run.seeds import SeedGroup
+
+sys.path.insert(0, str(Path(__file__).parent))
+from bench_rows import row_name  # noqa: E402
+
+SPEC = "bench-seeds"
 
 
 @dataclasses.dataclass
@@ -35,8 +42,8 @@ class Args:
     """Warm epochs timed per program (the median is reported)."""
     epochs: int = 150
     """Run length for the whole-run speed-up (point-mass-k1's own)."""
-    out: str = ""
-    """JSON output path; empty means benchmarks/results/seeds_<backend>.json."""
+    results: str = f"results/{SPEC}.jsonl"
+    """The results store the rows are appended to."""
 
 
 def _seconds(fn) -> tuple[float, object]:
@@ -73,6 +80,7 @@ def main(args: Args) -> None:
                 "epoch_speedup": count * one["epoch_s"] / together["epoch_s"],
                 "run_speedup": sequential_run / group_run, "epochs": args.epochs,
             })
+            append_row(Path(args.results), benchmark_row(SPEC, row_name(rows[-1]), rows[-1], preset=preset))
             print(json.dumps(rows[-1]), flush=True)
     print("| preset | seeds | one seed: epoch s (compile s) | vmapped: epoch s (compile s) | epoch speed-up | "
           "run speed-up |")
@@ -81,11 +89,7 @@ def main(args: Args) -> None:
         print(f"| {r['preset']} | {r['seeds']} | {r['one_seed']['epoch_s']:.3f} ({r['one_seed']['compile_s']:.1f}) | "
               f"{r['group']['epoch_s']:.3f} ({r['group']['compile_s']:.1f}) | {r['epoch_speedup']:.2f}x | "
               f"{r['run_speedup']:.2f}x |")
-    out = Path(args.out or f"benchmarks/results/seeds_{jax.default_backend()}.json")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"backend": jax.default_backend(), "devices": [str(d) for d in jax.devices()],
-                               "machine": platform.processor() or platform.machine(), "rows": rows}, indent=1))
-    print(f"wrote {out}")
+    print(f"appended {len(rows)} rows to {args.results}")
 
 
 if __name__ == "__main__":

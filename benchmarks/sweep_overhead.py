@@ -5,8 +5,9 @@ For a spec (default: the smoke spec), "by hand" is what a user would type for ea
 trains them), then per seed `mjx-emp phase2 TASK RUN_DIR ...` and `mjx-emp eval RUN_DIR`. The
 sweep is `mjx-emp sweep SPEC` into a fresh runs root. A first, untimed sweep fills the compile
 cache both then read; the two are then timed alternately (by hand, sweep, by hand, sweep, ...),
-and each pair's ratio is reported with its wall times. Rows (with provenance) go to
-benchmarks/results/sweep_overhead_cpu.jsonl.
+and each pair's ratio is reported with its wall times. Each pair is a row of
+``results/bench-sweep-overhead.jsonl`` (``--results``), row ``all`` with the pair's number as its
+seed.
 
     python benchmarks/sweep_overhead.py --repeats 2
 """
@@ -24,19 +25,22 @@ from pathlib import Path
 import tyro
 
 from mjx_emp.algos.retired import flag_text
-from mjx_emp.run.provenance import command_line, provenance
-from mjx_emp.run.rows import append_row
+from mjx_emp.run.rows import append_row, benchmark_row
 from mjx_emp.run.sweep import load_spec
 
 ROOT = Path(__file__).resolve().parents[1]
+SPEC = "bench-sweep-overhead"
 
 
 @dataclasses.dataclass
 class Args:
     spec: str = str(ROOT / "experiments" / "smoke-point-mass.toml")
+    """The sweep spec whose runs are timed (its rows replace another spec's: give that its own
+    ``--results``)."""
     repeats: int = 2
     """Timed (by hand, sweep) pairs."""
-    out: str = str(ROOT / "benchmarks" / "results" / "sweep_overhead_cpu.jsonl")
+    results: str = f"results/{SPEC}.jsonl"
+    """The results store the rows are appended to."""
 
 
 def mjx_emp(*args: str) -> list[str]:
@@ -87,12 +91,9 @@ def main(args: Args) -> None:
         for repeat in range(args.repeats):
             by_hand = timed(by_hand_commands(args.spec, work / f"hand{repeat}"))
             swept = timed([sweep_command(args.spec, work, f"sweep{repeat}")])
-            row = {"spec": "sweep_overhead", "row": f"{Path(args.spec).stem} {time.strftime('%Y%m%d-%H%M%S')}",
-                   "seed": repeat, "spec_file": args.spec, "by_hand_s": by_hand,
-                   "sweep_s": swept, "sweep_over_by_hand": swept / by_hand,
-                   "by_hand_commands": len(by_hand_commands(args.spec, work)),
-                   "provenance": provenance(command_line())}
-            append_row(Path(args.out), row)
+            row = {"spec_file": args.spec, "by_hand_s": by_hand, "sweep_s": swept, "sweep_over_by_hand": swept / by_hand,
+                   "by_hand_commands": len(by_hand_commands(args.spec, work))}
+            append_row(Path(args.results), benchmark_row(SPEC, "all", row, seed=repeat))
             print(f"repeat {repeat}: by hand {by_hand:.1f} s, sweep {swept:.1f} s, ratio {swept / by_hand:.3f}",
                   flush=True)
     finally:

@@ -10,17 +10,18 @@ meet the target it confirms with the 400-goal evaluation of `mjx-emp eval` on th
 a confirmation that fails is recorded and training goes on. The row gives the env steps
 and wall seconds (training only, compile included; the confirmations' time is excluded
 and reported apart) of the first confirmed epoch, or ``reached: false`` with the run's
-best smoothed point if the budget (``--max-env-steps``, ``--max-minutes``) ends first. Run it alone: timings
-shared with another job are not the figure. ``python benchmarks/time_to_quality.py
---presets ant-field-k1-cpu --seeds 0``.
+best smoothed point if the budget (``--max-env-steps``, ``--max-minutes``) ends first. Each row is
+appended to ``results/bench-time-to-quality.jsonl`` (``--results``) as it is made, named by its
+preset (``SETTING/PRESET`` for a stored curve's) with its seed. Run it alone: timings shared with
+another job are not the figure. ``python benchmarks/time_to_quality.py --presets ant-field-k1-cpu
+--seeds 0``.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
-import os
-import platform
+import sys
 import time
 from pathlib import Path
 
@@ -31,6 +32,12 @@ from mjx_emp.algos.he.agent import HEAgent
 from mjx_emp.algos.registry import all_presets, preset_or_retired_config
 from mjx_emp.algos.retired import RETIRED
 from mjx_emp.run.evaluate import phase1_figures
+from mjx_emp.run.rows import append_row, benchmark_row
+
+sys.path.insert(0, str(Path(__file__).parent))
+from bench_rows import row_name  # noqa: E402
+
+SPEC = "bench-time-to-quality"
 
 
 @dataclasses.dataclass
@@ -51,13 +58,13 @@ class Args:
     episodes: int = 400
     """Greedy goals of the confirming evaluation."""
     curves: tuple[str, ...] = ()
-    """Train nothing: read the per-epoch curves of the rows in these JSON files (written by
-    ``experiments/robots_cpu.py`` or ``experiments/learner_ablation.py``) for ``--presets``
-    (a row's ``variant`` or ``preset``) and report the first epoch that meets the target by
-    the same smoothing; no 400-goal confirmation and no wall time (those runs shared the
-    machine)."""
-    out: str = ""
-    """JSON output path; empty means benchmarks/results/time_to_quality_<backend>.json."""
+    """Train nothing: read the per-epoch curves of the records in these JSON files (the former
+    result files of the robot and learner-ablation studies, ``benchmarks/results/*_cpu.json``)
+    for ``--presets`` (a record's ``variant`` or ``preset``) and report the first epoch that
+    meets the target by the same smoothing; no 400-goal confirmation and no wall time (those
+    runs shared the machine)."""
+    results: str = f"results/{SPEC}.jsonl"
+    """The results store the rows are appended to."""
 
 
 def smoothed(curve: list[tuple[float, float]], window: int) -> float:
@@ -132,35 +139,27 @@ def from_curves(args: Args) -> list[dict]:
     return rows
 
 
+def store(row: dict, args: Args) -> None:
+    """Append ``row`` (with the target it was held against) to the results store and print it."""
+    row["target"] = {"volume": args.target_volume, "success": args.target_success, "window": args.window}
+    append_row(Path(args.results), benchmark_row(SPEC, row_name(row), row, seed=row["seed"], preset=row["preset"],
+                                                 env_steps=row["env_steps"], wall_s=row["wall_s"]))
+    print(json.dumps({k: v for k, v in row.items() if k != "config"}), flush=True)
+
+
 def main(args: Args) -> None:
-    presets = all_presets()
-    out = Path(args.out or f"benchmarks/results/time_to_quality_{jax.default_backend()}.json")
-    rows = json.loads(out.read_text())["rows"] if out.exists() else []
     if args.curves:
         # One row per (preset, seed, source): a run evaluated at two budgets stores its curve twice.
-        found = list({(r["preset"], r["seed"], r["source"]): r
-                      for r in from_curves(args) if r["setting"] == "curriculum"}.values())
-        for row in found:
-            row["target"] = {"volume": args.target_volume, "success": args.target_success, "window": args.window}
-            print(json.dumps(row), flush=True)
-        keys = {(r["preset"], r["seed"], r["source"]) for r in found}
-        rows = [r for r in rows if (r["preset"], r["seed"], r.get("source")) not in keys] + found
-        out.write_text(json.dumps({"backend": jax.default_backend(), "rows": rows}, indent=1))
-        print(f"wrote {out}")
+        for row in {(r["preset"], r["seed"], r["source"]): r
+                    for r in from_curves(args) if r["setting"] == "curriculum"}.values():
+            store(row, args)
         return
+    presets = all_presets()
     for preset in args.presets:
         if preset not in presets and preset not in RETIRED:
             raise SystemExit(f"presets: {preset!r} is unknown; allowed values: {sorted(presets)}")
         for seed in args.seeds:
-            row = time_to_quality(preset, seed, args)
-            row["target"] = {"volume": args.target_volume, "success": args.target_success, "window": args.window}
-            print(json.dumps({k: v for k, v in row.items() if k != "config"}), flush=True)
-            rows = [r for r in rows if (r["preset"], r["seed"]) != (preset, seed)] + [row]
-            out.parent.mkdir(parents=True, exist_ok=True)
-            out.write_text(json.dumps({"backend": jax.default_backend(), "machine": platform.processor() or
-                                       platform.machine(), "cpus": os.cpu_count(), "rows": rows},
-                                      indent=1))
-    print(f"wrote {out}")
+            store(time_to_quality(preset, seed, args), args)
 
 
 if __name__ == "__main__":

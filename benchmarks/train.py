@@ -16,16 +16,16 @@ For each domain and k, in one process:
   (incompressible: the worst case, a run whose buffers are full).
 
 Epoch and rollout are timed alternately (``--repeats`` rounds); the overhead is the median
-of per-round ratios. Prints a Markdown table and writes JSON
-(default ``benchmarks/results/train_<backend>.json``).
+of per-round ratios. Prints Markdown tables and appends one row per preset
+(``PRESET/ENV/kK/num_envsB``) to ``results/bench-train.jsonl`` (``--results``).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
-import platform
 import statistics
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -39,7 +39,13 @@ from mjx_emp.algos.he.config import HEConfig
 from mjx_emp.algos.registry import preset_or_retired_config
 from mjx_emp.rollout.hierarchy import jit_init_rollout, jit_rollout
 from mjx_emp.run.checkpoint import Checkpoints
+from mjx_emp.run.rows import append_row, benchmark_row
 from mjx_emp.tracing import traces
+
+sys.path.insert(0, str(Path(__file__).parent))
+from bench_rows import row_name  # noqa: E402
+
+SPEC = "bench-train"
 
 
 @dataclasses.dataclass
@@ -56,8 +62,8 @@ class Args:
     """Goal-conditioned iterations per level and epoch; 0 keeps the preset's 10. Fewer keep
     a CPU epoch of deep agents short; the compiled program (and compile time) is the same."""
     repeats: int = 3
-    out: str = ""
-    """JSON output path; empty means benchmarks/results/train_<backend>.json."""
+    results: str = f"results/{SPEC}.jsonl"
+    """The results store the rows are appended to."""
 
 
 def _seconds(fn):
@@ -160,6 +166,7 @@ def main(args: Args) -> None:
                                   gc_iterations=args.gc_iterations or cfg.gc_iterations)
         row = measure(name, cfg, args.repeats)
         rows.append(row)
+        append_row(Path(args.results), benchmark_row(SPEC, row_name(row), row))
         print(json.dumps(row), flush=True)
     print("\n| preset | k | B | GC iters | compile s | epoch s | epoch env steps/s | rollout steps/s | overhead | recompiled |")
     print("|---|---|---|---|---|---|---|---|---|---|")
@@ -174,13 +181,7 @@ def main(args: Args) -> None:
         c, f = r["checkpoint"], r["checkpoint_full_buffers"]
         print(f"| {r['preset']} | {r['epoch_s']:.2f} | {r['checkpoint_added_fraction']:+.0%} | "
               f"{c['block_s']:.3f} | {c['commit_s']:.3f} | {c['mb']:.1f} | {f['commit_s']:.3f} | {f['mb']:.1f} |")
-    out = Path(args.out or f"benchmarks/results/train_{backend}.json")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({
-        "backend": backend, "device": str(jax.devices()[0]), "machine": platform.machine(),
-        "jax": jax.__version__, "args": dataclasses.asdict(args), "rows": rows,
-    }, indent=1))
-    print(f"wrote {out}")
+    print(f"appended {len(rows)} rows to {args.results}")
 
 
 if __name__ == "__main__":

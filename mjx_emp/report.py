@@ -49,7 +49,9 @@ class Metric:
     path: tuple[str, ...]
     label: str
     unit: str
-    lower_is_better: bool
+    lower_is_better: bool | None
+    """Which way is better: True for lower, False for higher, None where the metric does not
+    say (a figure named by its path); a table marks it ↓, ↑ or nothing."""
 
     @property
     def heading(self) -> str:
@@ -57,7 +59,8 @@ class Metric:
         return f"{self.label} ({self.unit})" if self.unit else self.label
 
 
-def _metric(name: str, path: tuple[str, ...], label: str, unit: str = "", lower_is_better: bool = False) -> Metric:
+def _metric(name: str, path: tuple[str, ...], label: str, unit: str = "",
+            lower_is_better: bool | None = False) -> Metric:
     return Metric(name, path, label, unit, lower_is_better)
 
 
@@ -92,15 +95,15 @@ x goals; one table never mixes environments, so the unit is named once for both.
 def metric_named(name: str | Metric) -> Metric:
     """``name``'s entry in :data:`METRICS` (a :class:`Metric` passes through), or for a dotted
     path into the row (``figures.cage.phase2.reached_beyond``) a metric reading that path,
-    labelled by its last part, higher is better; any other name is a ConfigError listing the
-    known ones."""
+    labelled by the path after ``figures``, its better direction unsaid; any other name is a
+    ConfigError listing the known ones."""
     if isinstance(name, Metric):
         return name
     if name in METRICS:
         return METRICS[name]
     path = tuple(name.split("."))
     if len(path) > 1 and path[0] == "figures" and all(path):
-        return _metric(name, path, path[-1].replace("_", " "))
+        return _metric(name, path, " ".join(path[1:]).replace("_", " "), lower_is_better=None)
     raise ConfigError(f"metric: {name!r} is not one of {', '.join(METRICS)}, nor a path figures.NAME[.NAME...]")
 
 
@@ -281,8 +284,8 @@ def table_headers(group_by: str, metrics: Sequence[Metric], baseline: str | None
     a baseline) per metric the probability of improvement over it."""
     headers = [group_by, "preset", "seeds", "env steps"]
     for metric in metrics:
-        arrow = "↓" if metric.lower_is_better else "↑"
-        headers += [f"{metric.heading} {arrow} mean ± std (se)", f"{metric.label} IQM [95% CI]"]
+        arrow = {True: " ↓", False: " ↑", None: ""}[metric.lower_is_better]
+        headers += [f"{metric.heading}{arrow} mean ± std (se)", f"{metric.label} IQM [95% CI]"]
     if baseline is not None:
         headers += [f"P({metric.label} better than {baseline}) [95% CI]" for metric in metrics]
     return headers
@@ -300,7 +303,7 @@ def table_line(name: str, group: Sequence[dict], metrics: Sequence[Metric], base
     if baseline_rows is not None:
         for metric in metrics:
             p = probability_of_improvement(metric_values(group, metric), metric_values(baseline_rows, metric),
-                                           metric.lower_is_better, reps, seed)
+                                           bool(metric.lower_is_better), reps, seed)
             cells.append(MISSING if p is None else interval_cell(*p))
     return cells
 
@@ -565,6 +568,17 @@ def spec_rows(spec: Any, results: Path) -> list[dict]:
     return [stored[(row.name, seed)] for row in spec.rows for seed in row.seeds if (row.name, seed) in stored]
 
 
+def chosen_rows(rows: Sequence[dict], patterns: Sequence[str]) -> list[dict]:
+    """The rows whose row name matches one of ``patterns`` (shell-style, ``check/rollout/*``);
+    every row where there are none. A spec's ``[report] rows`` names them, so that one store
+    of a benchmark's rows can feed several tables."""
+    from fnmatch import fnmatchcase
+
+    if not patterns:
+        return list(rows)
+    return [row for row in rows if any(fnmatchcase(str(row.get("row")), pattern) for pattern in patterns)]
+
+
 def producing_command(spec: Any) -> str:
     """The command that makes a spec's rows: its sweep, or its benchmark script."""
     return spec.command if isinstance(spec, BenchmarkSpec) else f"mjx-emp sweep {spec.path}"
@@ -593,7 +607,7 @@ def report_spec(spec_path: str, results: str = "", metrics: Sequence[str] = (), 
             output_target(Path(path), field)  # before anything is read: a FIFO would block, a device be lost
     spec = load_report_spec(spec_path)
     results_path = Path(results or Path(RESULTS_DIR) / f"{spec.name}.jsonl")
-    rows = spec_rows(spec, results_path)
+    rows = chosen_rows(spec_rows(spec, results_path), spec.report.get("rows", ()))
     if not rows:
         raise ConfigError(f"results: {results_path} holds no row of spec {spec.name!r}; run "
                           f"`{producing_command(spec)}` first")

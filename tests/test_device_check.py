@@ -8,12 +8,15 @@ import tarfile
 from pathlib import Path
 
 import pytest
+from tiny import benchmark
+
+from mjx_emp.run.rows import read_rows
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.mark.slow  # four minutes of CPU in six processes; run it before a GPU lease (docs/gpu.md)
-def test_the_device_session_dry_run_runs_every_step_and_writes_json(tmp_path):
+def test_the_device_session_dry_run_runs_every_step_and_writes_its_rows(tmp_path):
     out = tmp_path / "out"
     env = {**os.environ, "DRY": "1", "WHEELS": "none", "PYTHON": sys.executable, "OUT": str(out),
            "RUNS": str(tmp_path / "runs"), "TOTAL_S": "720", "CHECK_S": "400", "PHASE2_S": "200",
@@ -22,18 +25,17 @@ def test_the_device_session_dry_run_runs_every_step_and_writes_json(tmp_path):
                             timeout=900, cwd=ROOT, env=env)
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
     assert "smoke epoch" in (out / "versions.txt").read_text()
-    report = json.loads((out / "device_check_gpu.json").read_text())
-    assert report["dry_run"]
-    jax_steps = [s for s in report["steps"] if s["impl"] == "jax"]
-    assert [s["step"] for s in jax_steps] == ["memory", "train", "rollout", "seeds"]  # the session's order
-    jax_steps = {s["step"]: s for s in jax_steps}
-    assert not [s for s in jax_steps.values() if "error" in s or "skipped" in s], jax_steps
-    assert {row["k"] for row in jax_steps["rollout"]["result"]} == {1}
-    assert [row["seeds"] for row in jax_steps["seeds"]["result"]] == [2]
-    assert jax_steps["train"]["result"]["env_steps_per_s"] > 0
-    assert jax_steps["memory"]["result"]["state_bytes"] > 0
-    if report["backend"] != "gpu":  # warp cannot run here: every step says why instead of failing
-        assert all("warp" in s["skipped"] for s in report["steps"] if s["impl"] == "warp")
+    rows = read_rows(out / "check.jsonl")
+    assert {row["spec"] for row in rows} == {"gpu-sessions-dry-run"}  # never mixed with measured rows
+    jax_rows = [row for row in rows if row["figures"]["impl"] == "jax"]
+    assert [row["row"].split("/", 1)[1] for row in jax_rows] == [  # the session's order, each after the session
+        "check/memory/all", "check/train/point-mass-k1/num_envs8", "check/rollout/point_mass/batch8/k1",
+        "check/seeds/seeds2"]
+    figures = {row["figures"]["step"]: row["figures"] for row in jax_rows}
+    assert figures["train"]["env_steps_per_s"] > 0 and figures["memory"]["state_bytes"] > 0
+    assert figures["rollout"]["hier_useful_physics_steps_per_s"] > 0 and figures["seeds"]["epoch_s"] > 0
+    if rows[0]["train"]["machine"]["backend"] != "gpu":  # warp cannot run here: every step says why instead
+        assert all("warp" in row["figures"]["why"] for row in rows if row["figures"]["impl"] == "warp")
     lines = (out / "point-mass-k1.metrics.jsonl").read_text().splitlines()  # the training row ran its two epochs
     assert [json.loads(line)["epoch"] for line in lines] == [1, 2]
     assert "PHASE2_S=200" in (out / "versions.txt").read_text()  # the settings head the file
@@ -46,6 +48,13 @@ def test_the_device_session_dry_run_runs_every_step_and_writes_json(tmp_path):
     (row,) = json.loads((out / "point-mass-k1.eval.json").read_text())["runs"]
     run = row["figures"]
     assert run["epoch"] == 2 and run["phase2"]["epoch"] == 1 and run["phase2"]["episodes"] == 8
+    summary = benchmark("gpu_summary")  # back home: the session's rows into the store, a dry run's apart
+    summary.main(summary.Args(session=str(out), results=str(tmp_path / "rows.jsonl")))
+    stored = read_rows(tmp_path / "rows.jsonl")
+    assert stored[:len(rows)] == rows and {row["spec"] for row in stored} == {"gpu-sessions-dry-run"}
+    session = rows[0]["row"].split("/")[0]
+    assert [row["row"] for row in stored[len(rows):]] == [f"{session}/training/point-mass-k1",
+                                                          f"{session}/phase2/point-mass-k1"]
 
 
 @pytest.mark.slow  # two and a half minutes of CPU; run it before a GPU lease that trains seeds together
@@ -73,8 +82,8 @@ def test_the_device_session_trains_a_rows_seeds_in_one_program_and_returns_each_
 
 def test_the_device_check_refuses_an_unknown_step_with_exit_2(tmp_path):
     result = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "device_check.py"), "--dry-run",
-                             "--steps", "memory", "warmup", "--out", str(tmp_path / "x.json")],
+                             "--steps", "memory", "warmup", "--results", str(tmp_path / "x.jsonl")],
                             capture_output=True, text=True, timeout=300, cwd=ROOT)
     assert result.returncode == 2
     assert "--steps" in result.stderr and "warmup" in result.stderr and "rollout" in result.stderr
-    assert not (tmp_path / "x.json").exists()
+    assert not (tmp_path / "x.jsonl").exists()

@@ -95,10 +95,20 @@ def test_the_table_has_a_line_per_group_with_spread_iqm_and_improvement_over_the
 def test_a_column_no_group_fills_is_left_out_and_a_dotted_path_is_a_metric():
     rows = [{**make_row("bench", 0, coverage=3), "preset": "unknown", "figures": {"steps_per_s": 1500.0}}]
     table = markdown_table(rows, ["figures.steps_per_s"], reps=REPS)
-    assert table.splitlines()[0] == "| row | seeds | steps per s ↑ mean ± std (se) |"
+    assert table.splitlines()[0] == "| row | seeds | steps per s mean ± std (se) |"  # a path says no direction
     assert table.splitlines()[2] == "| bench | 1 | 1500 |"
     with pytest.raises(ConfigError, match="figures.NAME"):
         metric_named("speed")
+
+
+def test_a_specs_row_patterns_choose_the_rows_of_its_table():
+    from mjx_emp.report import chosen_rows
+
+    rows = [make_row(name, 0) for name in ("check/rollout/k1", "check/rollout/k2", "training/ant")]
+    assert [r["row"] for r in chosen_rows(rows, ["check/rollout/*"])] == ["check/rollout/k1", "check/rollout/k2"]
+    assert [r["row"] for r in chosen_rows(rows, ["training/*", "check/rollout/k2"])] == ["check/rollout/k2",
+                                                                                          "training/ant"]
+    assert chosen_rows(rows, []) == rows
 
 
 def test_the_table_groups_by_any_field_and_refuses_an_unknown_baseline():

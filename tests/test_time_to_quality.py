@@ -1,7 +1,11 @@
 """benchmarks/time_to_quality.py: the first epoch whose top box and smoothed success meet both targets."""
 
+import json
+
 import pytest
 from tiny import benchmark
+
+from mjx_emp.run.rows import read_rows
 
 
 def _curve(volumes, successes, steps_per_epoch):
@@ -18,3 +22,21 @@ def test_time_to_quality_finds_the_first_epoch_meeting_both_targets_on_smoothed_
     assert found["success"] == pytest.approx((0.5 + 1.0 + 1.0) / 3)
     missed = ttq.first_crossing(_curve([20, 20, 20], [0.7, 0.7, 0.7], 100.0), args)
     assert not missed["reached"] and missed["best"]["volume"] == 20
+
+
+def test_time_to_quality_appends_a_row_per_stored_run_and_seed(tmp_path):
+    ttq = benchmark("time_to_quality")
+    stored = tmp_path / "ablation.json"
+    runs = [{"variant": "ln", "preset": "p", "seed": seed, "setting": setting, "curve": _curve(volumes, successes, 100.0)}
+            for seed, setting, volumes, successes in ((0, "curriculum", [16, 17, 18], [0.9, 0.9, 0.9]),
+                                                      (1, "curriculum", [10, 12, 14], [0.9, 0.9, 0.9]),
+                                                      (1, "fixed-box", [20, 20, 20], [1.0, 1.0, 1.0]))]
+    stored.write_text(json.dumps({"rows": runs}))
+    results = tmp_path / "rows.jsonl"
+    ttq.main(ttq.Args(presets=("ln",), curves=(str(stored),), window=3, results=str(results)))
+    rows = read_rows(results)
+    assert [(row["spec"], row["row"], row["seed"]) for row in rows] == [
+        ("bench-time-to-quality", "curriculum/ln", 0), ("bench-time-to-quality", "curriculum/ln", 1)]
+    assert rows[0]["figures"]["reached"] and rows[0]["figures"]["env_steps"] == 300.0
+    assert not rows[1]["figures"]["reached"] and rows[1]["figures"]["best"]["volume"] == 14
+    assert rows[0]["figures"]["target"] == {"volume": 16.0, "success": 0.8, "window": 3}

@@ -54,7 +54,7 @@ from mjx_emp.run.rows import RESULTS_DIR, append_row, read_rows
 SPEC_KEYS = ("name", "eval_seed", "eval_seed_per_run", "coverage_draws", "episodes", "runs", "slurm", "report", "row")
 ROW_KEYS = ("name", "preset", "seeds", "overrides", "max_env_steps", "phase2", "phase2_overrides", "episodes",
             "group_seeds")
-REPORT_KEYS = ("metrics", "baseline", "reps")
+REPORT_KEYS = ("metrics", "baseline", "reps", "rows")
 """What a spec's ``[report]`` table may set: `mjx-emp report`'s defaults for the spec."""
 AUTO = "auto"
 """``phase2 = "auto"``: the phase-2 preset `mjx-emp phase2 RUN_DIR` would pick for the run."""
@@ -242,10 +242,12 @@ def load_spec(path: str | Path) -> Spec:
         raise ConfigError(f"spec: slurm: must be a table of submitit parameters; got {slurm!r}")
     report = raw.get("report", {})
     if not isinstance(report, dict) or sorted(set(report) - set(REPORT_KEYS)):
-        raise ConfigError(f"spec: report: a table of metrics (a list), baseline (a row name) and reps (bootstrap "
-                          f"resamples); got {report!r}")
+        raise ConfigError(f"spec: report: a table of metrics (a list), baseline (a row name), reps (bootstrap "
+                          f"resamples) and rows (row-name patterns); got {report!r}")
     if "reps" in report:
         _integer(report["reps"], "spec", "report.reps", 1)
+    if not isinstance(report.get("rows", []), list) or not all(isinstance(p, str) for p in report.get("rows", [])):
+        raise ConfigError(f"spec: report.rows: a list of row-name patterns, e.g. [\"he-*\"]; got {report['rows']!r}")
     rows = raw.get("row")
     if not isinstance(rows, list) or not rows:
         raise ConfigError("spec: row: give at least one [[row]] table")
