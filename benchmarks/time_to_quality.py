@@ -32,7 +32,7 @@ from mjx_emp.algos.he.agent import HEAgent
 from mjx_emp.algos.registry import all_presets, preset_or_retired_config
 from mjx_emp.algos.retired import RETIRED
 from mjx_emp.run.evaluate import phase1_figures
-from mjx_emp.run.rows import append_row, benchmark_row
+from mjx_emp.run.rows import append_row, benchmark_row, read_rows
 
 sys.path.insert(0, str(Path(__file__).parent))
 from bench_rows import row_name  # noqa: E402
@@ -58,9 +58,9 @@ class Args:
     episodes: int = 400
     """Greedy goals of the confirming evaluation."""
     curves: tuple[str, ...] = ()
-    """Train nothing: read the per-epoch curves of the records in these JSON files (the former
-    result files of the robot and learner-ablation studies, ``benchmarks/results/*_cpu.json``)
-    for ``--presets`` (a record's ``variant`` or ``preset``) and report the first epoch that
+    """Train nothing: read the per-epoch curves of the rows in these stores (e.g.
+    ``results/robots-levels.jsonl``, ``results/learner-ablation.jsonl``) for ``--presets`` (a
+    row's ``variant``, or the preset name it was recorded under) and report the first epoch that
     meets the target by the same smoothing; no 400-goal confirmation and no wall time (those
     runs shared the machine)."""
     results: str = f"results/{SPEC}.jsonl"
@@ -126,16 +126,29 @@ def first_crossing(curve: list[list[float]], args: Args) -> dict:
     return {"reached": False, "epoch": int(curve[-1][0]), "env_steps": curve[-1][1], "best": best}
 
 
+def stored_curve(row: dict) -> list[list[float]] | None:
+    """A stored row's per-epoch [epoch, env steps, top volume, success]: its recorded ``curve``,
+    or the same rebuilt from its ``curves`` (epochs counted from 1); None where it has neither."""
+    if row["figures"].get("curve"):
+        return row["figures"]["curve"]
+    curves = row.get("curves") or {}
+    if not curves.get("top_volume"):
+        return None
+    return [[epoch, steps, volume, success] for epoch, (steps, volume, success)
+            in enumerate(zip(curves["env_steps"], curves["top_volume"], curves["top_success"]), start=1)]
+
+
 def from_curves(args: Args) -> list[dict]:
     """Rows of :func:`first_crossing` for every stored run of ``--presets`` in ``--curves``."""
     rows = []
     for path in args.curves:
-        for stored in json.loads(Path(path).read_text())["rows"]:
-            name = stored.get("variant", stored["preset"])
-            if name in args.presets and "curve" in stored:
+        for stored in read_rows(Path(path)):
+            name = stored["figures"].get("variant") or stored["train"].get("recorded_as") or stored["preset"]
+            curve = stored_curve(stored)
+            if name in args.presets and curve is not None:
                 rows.append({"preset": name, "seed": stored["seed"], "source": path,
-                             "setting": stored.get("setting", "curriculum"),
-                             **first_crossing(stored["curve"], args), "wall_s": None})
+                             "setting": stored["figures"].get("setting", "curriculum"),
+                             **first_crossing(curve, args), "wall_s": None})
     return rows
 
 
