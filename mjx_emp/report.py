@@ -416,6 +416,7 @@ def seed_band_figure(rows: Sequence[dict], curve: str = "top_volume", out: Path 
     from matplotlib.figure import Figure
 
     from mjx_emp.run.store import replace_file
+    from mjx_emp.viz.plots import axes_content
 
     bands = seed_bands(rows, curve, group_by)
     if not bands:
@@ -435,12 +436,9 @@ def seed_band_figure(rows: Sequence[dict], curve: str = "top_volume", out: Path 
     fig.tight_layout()
     path = replace_file(Path(out), lambda temporary: fig.savefig(temporary, dpi=100, format="png"), chosen=True,
                         field="figure")
-    legend = [text.get_text() for text in ax.get_legend().get_texts()]
-    plotted = {line.get_label(): line for line in ax.get_lines()}
-    series = {name: Band(band.n, [float(v) for v in plotted[legend_text(name, band)].get_xdata()],
-                         [float(v) for v in plotted[legend_text(name, band)].get_ydata()], band.std)
-              for name, band in bands.items()}
-    return Chart(path, ax.get_title(), ax.get_xlabel(), ax.get_ylabel(), legend, series)
+    (shown,) = axes_content(fig)
+    series = {name: Band(band.n, *shown.series[legend_text(name, band)], band.std) for name, band in bands.items()}
+    return Chart(path, shown.title, shown.xlabel, shown.ylabel, shown.legend, series)
 
 
 # --------------------------------------------------------------------------- files
