@@ -139,6 +139,9 @@ GOOD_ROW = '[[row]]\nname = "a"\npreset = "point-mass-k1"\nseeds = [0]\n'
     ('[[row]]\nname = "a"\npreset = "point-mass-k1"\nseeds = []\n', ["row 'a'", "seeds", "non-empty"]),
     (GOOD_ROW + 'phase2 = "reach-the-moon"\n', ["row 'a'", "phase2", "not a phase-2 preset"]),
     (GOOD_ROW + 'phase2 = "auto"\nphase2_overrides = { eps = -1.0 }\n', ["row 'a'", "phase2_overrides", "eps"]),
+    ('coverage_draws = 1001\n' + GOOD_ROW, ["coverage_draws", "[1, 1000]"]),
+    ('[report]\nreps = 0\n' + GOOD_ROW, ["report.reps", ">= 1"]),
+    ('[report]\nrows = "he-*"\n' + GOOD_ROW, ["report.rows", "list"]),
 ])
 def test_a_bad_spec_is_refused_naming_the_row_and_the_field(tmp_path, body, named):
     path = tmp_path / "bad.toml"
@@ -147,6 +150,17 @@ def test_a_bad_spec_is_refused_naming_the_row_and_the_field(tmp_path, body, name
         load_spec(path)
     for part in named:
         assert part in str(refused.value), (part, str(refused.value))
+
+
+def test_a_benchmark_specs_report_table_is_checked_as_a_sweeps_is(tmp_path):
+    from mjx_emp.report import load_report_spec
+
+    path = tmp_path / "bench.toml"
+    path.write_text('name = "bench-x"\ncommand = "python benchmarks/x.py"\n[report]\nreps = "many"\n')
+    with pytest.raises(ConfigError, match="report.reps"):
+        load_report_spec(str(path))
+    path.write_text('name = "bench-x"\ncommand = "python benchmarks/x.py"\n[report]\nrows = ["a/*"]\n')
+    assert load_report_spec(str(path)).report == {"rows": ["a/*"]}
 
 
 def test_the_cli_refuses_a_bad_spec_with_exit_2_before_anything_trains(tmp_path):

@@ -45,6 +45,7 @@ from typing import Any
 
 from mjx_emp.algos.registry import algorithm_of, all_presets
 from mjx_emp.checks import config_from_dict
+from mjx_emp.commands import MAX_COVERAGE_DRAWS
 from mjx_emp.errors import ConfigError, JobFailed
 from mjx_emp.phase2.config import Phase2Config, check_phase2_config
 from mjx_emp.phase2.presets import PHASE2_PRESETS, phase2_preset_for
@@ -210,6 +211,21 @@ def check_row(raw: Any, index: int, default_episodes: int) -> Row:
                group_seeds and config.shards == 1 and len(seeds) > 1)
 
 
+def check_report_table(report: Any) -> dict[str, Any]:
+    """A spec's ``[report]`` table (a sweep's or a benchmark's) checked: only the keys of
+    :data:`REPORT_KEYS`, ``reps`` an integer >= 1, ``rows`` a list of row-name patterns; a
+    ConfigError naming the field otherwise. The baseline is checked against the rows by the
+    caller that knows them."""
+    if not isinstance(report, dict) or sorted(set(report) - set(REPORT_KEYS)):
+        raise ConfigError(f"spec: report: a table of metrics (a list), baseline (a row name), reps (bootstrap "
+                          f"resamples) and rows (row-name patterns); got {report!r}")
+    if "reps" in report:
+        _integer(report["reps"], "spec", "report.reps", 1)
+    if not isinstance(report.get("rows", []), list) or not all(isinstance(p, str) for p in report.get("rows", [])):
+        raise ConfigError(f"spec: report.rows: a list of row-name patterns, e.g. [\"he-*\"]; got {report['rows']!r}")
+    return dict(report)
+
+
 def load_spec(path: str | Path) -> Spec:
     """Read and check a spec file (see the module docstring); a bad spec raises ConfigError
     naming the row and the field, before anything is trained."""
@@ -230,6 +246,8 @@ def load_spec(path: str | Path) -> Spec:
         raise ConfigError(f"spec: name: must be a file-name-like string; got {name!r}")
     eval_seed = _integer(raw.get("eval_seed", 0), "spec", "eval_seed")
     coverage_draws = _integer(raw.get("coverage_draws", 1), "spec", "coverage_draws", 1)
+    if coverage_draws > MAX_COVERAGE_DRAWS:  # the bound `mjx-emp eval --coverage-draws` holds
+        raise ConfigError(f"spec: coverage_draws: must be in [1, {MAX_COVERAGE_DRAWS}]; got {coverage_draws}")
     per_run = raw.get("eval_seed_per_run", False)
     if not isinstance(per_run, bool):
         raise ConfigError(f"spec: eval_seed_per_run: must be true or false; got {per_run!r}")
@@ -240,14 +258,7 @@ def load_spec(path: str | Path) -> Spec:
     slurm = raw.get("slurm", {})
     if not isinstance(slurm, dict):
         raise ConfigError(f"spec: slurm: must be a table of submitit parameters; got {slurm!r}")
-    report = raw.get("report", {})
-    if not isinstance(report, dict) or sorted(set(report) - set(REPORT_KEYS)):
-        raise ConfigError(f"spec: report: a table of metrics (a list), baseline (a row name), reps (bootstrap "
-                          f"resamples) and rows (row-name patterns); got {report!r}")
-    if "reps" in report:
-        _integer(report["reps"], "spec", "report.reps", 1)
-    if not isinstance(report.get("rows", []), list) or not all(isinstance(p, str) for p in report.get("rows", [])):
-        raise ConfigError(f"spec: report.rows: a list of row-name patterns, e.g. [\"he-*\"]; got {report['rows']!r}")
+    report = check_report_table(raw.get("report", {}))
     rows = raw.get("row")
     if not isinstance(rows, list) or not rows:
         raise ConfigError("spec: row: give at least one [[row]] table")
