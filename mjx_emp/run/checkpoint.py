@@ -485,6 +485,15 @@ class Checkpoints:
         raise CheckpointError(f"{self.directory}: every checkpoint was removed while it was read, "
                               f"{RETENTION_RETRIES} times; is a trainer keeping very few (--keep-checkpoints)?")
 
+    def _superseded(self, epoch: int) -> bool:
+        """Whether ``epoch``'s checkpoint, which failed to read, is one the run's writer is
+        removing: its folder is gone, or the writer has since finished a newer checkpoint (its
+        retention removes the older ones right after, so a read can meet one half deleted)."""
+        if not self.step_dir(epoch).exists():
+            return True
+        self.manager.reload()
+        return any(newer > epoch for newer in self.epochs())
+
     def _restore_newest(self, template: Any, expected: Any, fallback: bool) -> tuple[int, Any] | None:
         """:meth:`restore_latest`'s one pass over the listing; None where a checkpoint it read was
         removed meanwhile (by the run's writer, never damaged)."""
@@ -499,7 +508,7 @@ class Checkpoints:
                     self.set_aside_newer_than(epoch)
                 return epoch, state
             except CheckpointError as err:
-                if self.read_only and not self.step_dir(epoch).exists():
+                if self.read_only and self._superseded(epoch):
                     return None
                 if not fallback:
                     older = [e for e in epochs if e < epoch]
