@@ -334,7 +334,7 @@ def test_attempt_rows_follow_each_first_episode_attempt_by_attempt():
     so step 4's row belongs to its second); environment 1's first attempt is cut short at step 0
     after moving away from the goal, its second ends at step 2 on its back."""
     from mjx_emp.rollout.hierarchy import Transition
-    from mjx_emp.run.evaluate import attempt_rows
+    from mjx_emp.run.flips import attempt_rows
 
     obs, next_obs = np.zeros((5, 2, 2)), np.zeros((5, 2, 2))
     obs[1, 0, 0], next_obs[1, 0, 0] = 0.0, 1.0

@@ -160,6 +160,19 @@ class Env:
         w, x, y, z = (obs[..., self.torso_quat + i] for i in range(4))
         return (w * w - x * x - y * y + z * z) / (w * w + x * x + y * y + z * z)
 
+    def torso_angular_speed(self, obs: jax.Array) -> jax.Array:
+        """How fast the torso turns, in rad/s, read from an observation: the norm of a free
+        torso's angular velocity (Ant) or the planar torso's pitch rate (Half Cheetah); 0 for
+        the point mass."""
+        velocity = obs[..., self.mj_model.nq:]
+        if self.torso_pitch is not None:
+            return jnp.abs(velocity[..., self.torso_pitch])
+        if self.torso_quat is None:
+            return jnp.zeros(jnp.shape(obs)[:-1])
+        # The free torso joint comes first (position, then quaternion in qpos; linear, then angular
+        # velocity in qvel), so its angular velocity is qvel[3:6].
+        return jnp.linalg.norm(velocity[..., 3:6], axis=-1)
+
     def step(self, state: EnvState, action: jax.Array) -> EnvState:
         """Apply one primitive action (clipped to [-1, 1]) for ``action_repeat`` physics steps.
 

@@ -20,13 +20,18 @@ from mjx_emp.algos.registry import GOAL_SPACES, algorithm_of
 from mjx_emp.errors import CheckpointError, ConfigError
 from mjx_emp.metrics import coverage_cells
 from mjx_emp.phase2.config import Phase2Config
-from mjx_emp.rollout.hierarchy import jit_init_rollout, jit_rollout
 from mjx_emp.run import jobs, store
+from mjx_emp.run.flips import flip_text, phase1_flips, phase2_flips, pooled
 from mjx_emp.run.provenance import provenance
 from mjx_emp.run.rows import ROW_SCHEMA
 
 COVERAGE_SKILLS = 48
 """Skills per coverage count, as in METRA's Ant figures."""
+FLIP_TABLE_KEY = 1_000_003
+"""Folded into the evaluation key for the flip tables' episodes, so that they draw other goals
+than the figures beside them (adding the tables changed none of those)."""
+FLIP_TABLE_PHASE2_ENVS = 64
+"""Greedy phase-2 episodes the flip table follows step by step."""
 
 
 def coverage_figures(skill_paths, key, draws: int = 1) -> dict[str, Any]:
@@ -86,60 +91,16 @@ def phase2_figures(trainer, epoch: int, state, key, episodes: int) -> dict:
     """The paper's phase-2 figure of a phase-2 state: its task and the greedy policy's mean
     minimum distance to goal and success on at least ``episodes`` goals from the region; where
     the trainer offers them (``diagnostic_tops``), the same figures of the scripted policies on
-    the same goals (:data:`mjx_emp.metrics.PHASE2_DIAGNOSTICS`)."""
+    the same goals (:data:`mjx_emp.metrics.PHASE2_DIAGNOSTICS`); and the flip table of
+    :data:`FLIP_TABLE_PHASE2_ENVS` greedy episodes (:func:`mjx_emp.run.flips.phase2_flips`)."""
     cfg = trainer.cfg
     figures = {"epoch": epoch, "n": cfg.n, "eps": cfg.eps, "region": list(cfg.region),
                "region_offset": list(cfg.region_offset), **trainer.evaluate(state, key, episodes)}
     for top in trainer.diagnostic_tops:  # the same goals (same key) under the scripted policies
         figures[top] = dataclasses.replace(trainer, top=top).evaluate(state, key, episodes)
+    figures["flip_table"] = phase2_flips(trainer, state, jax.random.fold_in(key, FLIP_TABLE_KEY),
+                                         FLIP_TABLE_PHASE2_ENVS)
     return figures
-
-
-def attempt_figures(trainer, state, key, envs: int = 64) -> list[dict]:
-    """Phase 2's episodes attempt by attempt (:func:`attempt_rows`) for the first greedy episode
-    of each of ``envs`` environments, with the trainer's policy on top (learned, or a scripted
-    ``top``). It tells skills that chain (progress on every attempt) from skills that work once
-    from the initial state and then no more, e.g. because the first left the robot on its back."""
-    transitions, first_end = greedy_first_episodes(trainer, state, key, envs)
-    return attempt_rows(trainer.env, jax.device_get(transitions[-1]), first_end, trainer.cfg.n)
-
-
-def greedy_first_episodes(trainer, state, key, envs: int) -> tuple[tuple, np.ndarray]:
-    """``envs`` greedy phase-2 episodes (the trainer's policy on top) rolled out long enough for
-    each environment to finish its first: every level's transitions ([T, B] rows on the device,
-    bottom level first; a caller fetches the levels it reads) and the step at which each
-    environment's first episode ends."""
-    plan = trainer.greedy_episodes(state)
-    steps = trainer.longest_episode + 1  # the longest episode fits, with its ending step
-    begin = jit_init_rollout(plan.hierarchy, plan.params, plan.start, plan.start_params, key, envs, plan.root)
-    _, transitions, episodes, _ = jit_rollout(plan.hierarchy, plan.params, plan.start, plan.start_params, begin, steps)
-    first_end = np.where(np.asarray(episodes.first_ended), np.arange(steps)[:, None], steps).min(axis=0)
-    return tuple(transitions[: plan.root + 1]), first_end
-
-
-def attempt_rows(env, top, first_end: np.ndarray, attempts: int) -> list[dict]:
-    """Per attempt index i (0..``attempts``-1), over the top level's rows ``top`` ([T, B]
-    arrays) up to each environment's ``first_end`` step: how many episodes made an i-th attempt,
-    their mean progress toward the task goal (distance before less distance after, in goal-space
-    units), the distance after, and the fractions that began and ended with the torso upside down
-    (up axis below the horizon) or that a reset cut short."""
-    ended = np.asarray(top.valid | top.cut) & (np.arange(top.valid.shape[0])[:, None] <= first_end[None, :])
-    index = np.cumsum(ended, axis=0) - 1  # which attempt of its episode each ending row closes
-    goal = np.asarray(top.goal)
-    before = np.linalg.norm(np.asarray(env.goal_of_obs(np.asarray(top.obs))) - goal, axis=-1)
-    after = np.linalg.norm(np.asarray(env.goal_of_obs(np.asarray(top.next_obs))) - goal, axis=-1)
-    down_before, down_after = (np.asarray(env.up_axis_z(top.obs)) < 0, np.asarray(env.up_axis_z(top.next_obs)) < 0)
-    rows = []
-    for i in range(attempts):
-        at = ended & (index == i)
-        if not at.any():
-            break
-        rows.append({"attempt": i, "episodes": int(at.sum()), "progress": float((before - after)[at].mean()),
-                     "distance_after": float(after[at].mean()),
-                     "upside_down_before": float(down_before[at].mean()),
-                     "upside_down_after": float(down_after[at].mean()),
-                     "cut_short": float(np.asarray(top.cut)[at].mean())})
-    return rows
 
 
 def phase2_of_run(run_dir: Path, key, episodes: int) -> dict | None:
@@ -158,18 +119,21 @@ def run_figures(run_dir: Path, key, episodes: int, coverage_draws: int = 1) -> d
     """A run's figures from its newest good checkpoint, in one layout for every algorithm:
     ``levels`` (goal-space algorithms; else empty), ``top_volume`` and ``top_success`` (the top
     level's box at s0 and its greedy success; None without levels), ``flips`` (the fraction of the
-    top level's evaluation episodes a flip cut short), ``coverage_cells``, ``volume_x_success``,
-    ``posterior_std`` (DIAYN and HIDIO) and ``phase2`` (None without RUN_DIR/phase2)."""
+    top level's evaluation episodes a flip cut short), ``flip_table`` (where the skills flip the
+    robot, per level: :func:`mjx_emp.run.flips.phase1_flips`; None for flat skill learners),
+    ``coverage_cells``, ``volume_x_success``, ``posterior_std`` (DIAYN and HIDIO) and ``phase2``
+    (None without RUN_DIR/phase2)."""
     agent, _, state = jobs.load_run(Path(run_dir))
     if algorithm_of(agent.cfg).skills == GOAL_SPACES:
         figures = phase1_figures(agent, state, key, episodes, coverage_draws)
         top = figures["levels"][-1]
         figures = {**figures, "top_volume": top["volume"], "top_success": top["success"],
-                   "flips": top.get("cut_short"), "posterior_std": None}
+                   "flips": top.get("cut_short"), "posterior_std": None,
+                   "flip_table": phase1_flips(agent, state, jax.random.fold_in(key, FLIP_TABLE_KEY), episodes)}
     else:
         figures = skill_figures(agent, state, key, coverage_draws)
         figures = {**figures, "levels": [], "top_volume": None, "top_success": None, "flips": None,
-                   "volume_x_success": None}
+                   "volume_x_success": None, "flip_table": None}
     figures.pop("algorithm", None)
     return {**figures, "phase2": phase2_of_run(Path(run_dir), key, episodes)}
 
@@ -314,6 +278,11 @@ def evaluation_text(report: dict) -> str:
                      f"cells of goal space): {spread_text(report['coverage_cells'])} cells")
         if "posterior_std" in report:
             lines.append(f"posterior mean std: {spread_text(report['posterior_std'])}")
+    tables = [row["figures"].get("flip_table") for row in rows]
+    if tables and all(tables):
+        phase2_tables = [(row["figures"].get("phase2") or {}).get("flip_table") for row in rows]
+        lines += flip_text([pooled([t[level] for t in tables]) for level in range(len(tables[0]))],
+                           pooled(phase2_tables) if all(phase2_tables) else None)
     p2 = report.get("phase2")
     if p2 is None:
         lines.append("phase 2: no run has a phase-2 directory (train one with `mjx-emp phase2 RUN_DIR`)")

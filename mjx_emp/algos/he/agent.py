@@ -299,6 +299,18 @@ class HEAgent:
         params, start_params = self.rollout_inputs(state, jnp.int32(k), jnp.int32(MODE_STARTS))
         return RolloutPlan(self.hierarchy, params, self.start, start_params, root=k)
 
+    def greedy_episodes(self, state: HEState, level: int, starts: str = "buffer") -> RolloutPlan:
+        """Greedy episodes rooted at ``level`` as :meth:`evaluate` runs them (goals from the
+        level's own noise-free box, starts from the states ``starts`` names), for a caller that
+        follows them step by step (the flip table)."""
+        if starts not in EVAL_STARTS:
+            raise ValueError(f"starts: {starts!r} is unknown; allowed values: {list(EVAL_STARTS)}")
+        initial = jnp.asarray(self.initial_obs)
+        which = EVAL_STARTS.index(starts)
+        state = state.replace(starts=tuple(start_subset(buffer, initial, which) for buffer in state.starts))
+        params, start_params = self.rollout_inputs(state, jnp.int32(level), jnp.int32(MODE_EVAL))
+        return RolloutPlan(self.hierarchy, params, self.start, start_params, root=level)
+
     def greedy_policy(self, state: HEState, level: int = 0) -> Callable[[jax.Array, jax.Array], jax.Array]:
         """``level``'s greedy goal-conditioned policy, (obs [B, obs], goal [B, goal]) -> action: a
         primitive action at level 0, a subgoal offset from h(obs) above (goals are absolute)."""

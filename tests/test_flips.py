@@ -1,0 +1,125 @@
+"""The flip table: where skills flip the robot, step by step, in phase 1 and in phase 2."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import numpy as np
+import pytest
+from tiny import TINY_PHASE2, tiny_after_two_epochs
+
+from mjx_emp.envs.env import Env
+from mjx_emp.rollout.hierarchy import Transition
+from mjx_emp.run import flips
+
+
+@dataclasses.dataclass(frozen=True)
+class PitchEnv:
+    """What the flip table reads of an environment: h(s) is obs[0], the torso pitch obs[1], its
+    rate obs[2]."""
+
+    def goal_of_obs(self, obs):
+        return obs[..., :1]
+
+    def up_axis_z(self, obs):
+        return np.cos(obs[..., 1])
+
+    def torso_angular_speed(self, obs):
+        return np.abs(obs[..., 2])
+
+
+def planted_episodes() -> flips.FirstEpisodes:
+    """One level, rows [T=6, B=3], pitch rising by 0.5 rad per step in environment 0 until a
+    reset cuts its step 3 short (an Ant's flip), environment 1 left on its back by step 2 (a
+    Half Cheetah's), environment 2 upright to its end at step 5 (its skill of 3 actions is
+    reached at step 2, the next runs out at 5). Environment 0 ends at step 3, environment 1 at 4."""
+    steps, envs = 6, 3
+    obs = np.zeros((steps, envs, 3))
+    obs[:, 0, 1] = 0.5 * np.arange(steps)
+    obs[:, 0, 2] = 5.0
+    obs[:, 1, 1] = [0.0, 0.2, 0.4, np.pi, np.pi, np.pi]
+    obs[:, 2, 2] = 0.1
+    next_obs = np.roll(obs, -1, axis=0)
+    valid, cut, final = np.ones((steps, envs), bool), np.zeros((steps, envs), bool), np.zeros((steps, envs), bool)
+    valid[3, 0], cut[3, 0] = False, True
+    final[[2, 5], 2], final[3, 0], final[4, 1] = True, True, True
+    rows = Transition(obs=obs, goal=np.zeros((steps, envs, 1)), action=np.zeros((steps, envs, 1)), next_obs=next_obs,
+                      reached=np.zeros((steps, envs), bool), final=final, valid=valid, cut=cut)
+    return flips.FirstEpisodes((rows,), first_end=np.array([3, 4, 5]), info=None)
+
+
+def test_the_table_finds_each_planted_flip_where_and_how_it_happened():
+    env, episodes = PitchEnv(), planted_episodes()
+    flipped_at = flips.flip_steps(env, episodes)
+    assert flipped_at.tolist() == [3, 2, -1]
+    table = flips.episode_flips(env, episodes, actions_per_level=(4,))
+    assert table["flips"] == 2 and table["flip_share"] == pytest.approx(2 / 3)
+    (level,) = table["by_index"]
+    # Indices in progress: env 0 steps 0-3 -> 0..3 (flip at index 3); env 1 -> 0..2 (flip at 2);
+    # env 2 -> 0,1,2 then 0,1,2 after its first goal's final row at step 2.
+    assert level["flips"] == [0, 0, 1, 1]
+    assert level["attempts"] == [4, 4, 4, 1]  # actions ended before any flip, and the two in progress at one
+    assert level["hazard"] == [0.0, 0.0, 0.25, 1.0]
+    before = table["before_flip"]
+    # Env 0's last states before its flip: pitch 1.5, 1.0, 0.5, 0 -> tilt 1 - cos; env 1's: 0.4, 0.2, 0.
+    tilt0, tilt1 = 1 - np.cos([1.5, 1.0, 0.5, 0.0]), 1 - np.cos([0.4, 0.2, 0.0])
+    expected = [(tilt0[0] + tilt1[0]) / 2, (tilt0[1] + tilt1[1]) / 2, (tilt0[2] + tilt1[2]) / 2, tilt0[3]]
+    np.testing.assert_allclose(before["flipped_tilt"][:4], expected)
+    assert before["flipped_tilt"][4] is None and before["upright_tilt"][:6] == [0.0] * 6
+    np.testing.assert_allclose(before["flipped_angular_speed"][:3], [2.5, 2.5, 2.5])  # env 0 spins at 5, env 1 not
+    warned = before["angular_speed_warning"]
+    assert warned["threshold"] == pytest.approx(0.1) and warned["warned"] == 0.5 and warned["median_lead"] == 3.0
+
+
+def test_goal_places_and_subgoal_sizes_bin_the_episodes_that_flipped():
+    place = flips.goal_place(np.array([[0.1, -0.2], [0.9, 0.0], [-0.6, 0.3], [0.95, 0.99]]),
+                             np.array([False, True, False, True]))
+    assert place["episodes"] == [1, 0, 1, 2] and place["flips"] == [0, 0, 0, 2] and place["share"][3] == 1.0
+    episodes = planted_episodes()
+    top = dataclasses.replace(episodes.levels[0], action=np.full((6, 3, 2), 0.3))  # subgoals of 0.42 m
+    sizes = flips.subgoal_flips(PitchEnv(), top, episodes.first_end)
+    assert sizes["episodes"][0] == 4 + 5 + 6 and sum(sizes["episodes"]) == 15  # every row up to each first end
+    assert sizes["flips"][0] == 2  # env 1's rows after its flip began on its back: not flips again
+
+
+def test_tables_of_runs_pool_their_counts():
+    env, episodes = PitchEnv(), planted_episodes()
+    one = flips.episode_flips(env, episodes, (4,))
+    both = flips.pooled([one, one])
+    assert both["episodes"] == 6 and both["flips"] == 4 and both["flip_share"] == pytest.approx(2 / 3)
+    assert both["by_index"][0]["attempts"] == [8, 8, 8, 2]
+    assert both["before_flip"]["flipped_tilt"] == one["before_flip"]["flipped_tilt"]
+
+
+@pytest.fixture
+def planted_flip(monkeypatch):
+    """A point mass whose torso counts as upside down once h(s) passes x = 0: the table reads
+    tilt through ``Env.up_axis_z``, while the point mass is never reset."""
+    def up_axis_z(self, obs):
+        return np.where(np.asarray(obs)[..., 0] > 0.0, -1.0, 1.0)
+
+    monkeypatch.setattr(Env, "up_axis_z", up_axis_z)
+
+
+def test_phase1_and_phase2_tables_of_a_trained_agent_find_the_planted_flip(planted_flip):
+    from mjx_emp.phase2.goal_spaces import Phase2Trainer
+
+    agent, _, state, _, _ = tiny_after_two_epochs()
+    levels = flips.phase1_flips(agent, state, jax.random.key(0), episodes=16)
+    assert [t["level"] for t in levels] == [0, 1] and all(t["episodes"] == 32 for t in levels)
+    for level, table in enumerate(levels):
+        rolled = [flips.roll_first_episodes(agent.greedy_episodes(state, level, starts),
+                                            jax.random.fold_in(jax.random.fold_in(jax.random.key(0), level), i), 16)
+                  for i, starts in enumerate(("initial", "chained"))]
+        low = flips.joined(rolled).levels[0]
+        past = (np.asarray(low.next_obs)[..., 0] > 0.0) & flips.in_first_episode(low, flips.joined(rolled).first_end)
+        assert table["flips"] == int(past.any(axis=0).sum()) > 0
+        assert sum(table["by_index"][0]["flips"]) == table["flips"]
+        assert sum(table["by_goal_place"]["episodes"]) == 32
+    trainer = Phase2Trainer(agent, TINY_PHASE2)
+    phase2 = flips.phase2_flips(trainer, trainer.init(state), jax.random.key(1), envs=8)
+    assert phase2["episodes"] == 8 and phase2["flips"] > 0 and len(phase2["by_index"]) == 3
+    assert phase2["by_attempt"][0]["episodes"] == 8
+    text = "\n".join(flips.flip_text([flips.pooled([t]) for t in levels], flips.pooled([phase2])))
+    assert "| 0 | 32 |" in text and "level 0 flips per primitive step" in text and "phase 2:" in text
