@@ -129,14 +129,15 @@ def test_attempts_a_reset_ended_are_kept_as_terminal_rows_only_when_asked(tiny_p
     """With ``learn_from_resets`` the attempt a reset ended is stored at its last state before the
     reset, not reached and marked cut, and it trains; without it no such attempt is stored."""
     trainer, skills_state, _ = tiny_phase2
-    for learn in (False, True):
-        keeping = Phase2Trainer(trainer.phase1, dataclasses.replace(TINY_PHASE2, learn_from_resets=learn))
+    for learn, cost in ((False, 0.0), (True, 0.0), (False, 5.0)):  # a flip cost keeps them too
+        keeping = Phase2Trainer(trainer.phase1, dataclasses.replace(TINY_PHASE2, learn_from_resets=learn,
+                                                                    flip_cost=cost))
         state = keeping.init(skills_state)
         broken = state.replace(skill_actors=jax.tree.map(lambda x: jnp.full_like(x, jnp.nan), state.skill_actors))
         new, totals = jax.jit(keeping._collect)(broken, jnp.float32(0.0), jnp.bool_(True), jax.random.key(1))
         size = int(new.replay.size)
         assert int(totals.cut_short) == TINY_PHASE2.num_envs
-        if not learn:
+        if not learn and not cost:
             assert size == 0 and new.replay.data.cut is None
             continue
         assert size >= TINY_PHASE2.num_envs
@@ -155,6 +156,8 @@ def test_a_cut_backup_scores_the_fall_for_ever_and_bootstraps_nothing():
     cut = cut_backup(backup, jnp.array([True, False]), 0.95)
     np.testing.assert_allclose(np.asarray(cut.reward), [-40.0, -2.0], rtol=1e-6)
     np.testing.assert_allclose(np.asarray(cut.discount), [0.0, 0.0])
+    absorbing = cut_backup(backup, jnp.array([True, False]), 0.95, flip_cost=3.0)  # -5 every step after the flip
+    np.testing.assert_allclose(np.asarray(absorbing.reward), [-100.0, -2.0], rtol=1e-6)
 
 
 @pytest.mark.parametrize("field, value, message", [
@@ -167,6 +170,7 @@ def test_a_cut_backup_scores_the_fall_for_ever_and_bootstraps_nothing():
     ("phase1_epoch", -2, "phase1_epoch"),
     ("aim_weight", 1.0, "aim_weight: a cost of leaving the aim prior needs aim_prior True"),
     ("aim_weight", -1.0, "aim_weight: must be >= 0"),
+    ("flip_cost", -1.0, "flip_cost: must be >= 0"),
 ])
 def test_bad_phase2_values_name_the_field(field, value, message):
     with pytest.raises(ConfigError, match=message.replace("[", r"\[").replace("(", r"\(").replace(")", r"\)")):
@@ -179,7 +183,7 @@ def test_every_table_2_preset_builds_on_a_phase_1_preset_of_the_same_domain():
         check_phase2_config(cfg, goal_size=len(DOMAINS[skills.env].goal_qpos))
         if "-paper" in name:
             assert name == f"reach-{phase1}"
-        assert not cfg.aim_prior and not cfg.learn_from_resets, name  # options beyond the paper stay off
+        assert not cfg.aim_prior and not cfg.learn_from_resets and not cfg.flip_cost, name  # beyond the paper: off
     assert phase2_preset_for(PRESETS["ant-field-k3-paper-xl"][1]) == "reach-ant-field-k3-paper-xl"
     # Two presets share Ant Field's n = (20,): each run gets the task sized for its own preset.
     assert phase2_preset_for(PRESETS["ant-field-k1-paper-small"][1]) == "reach-ant-field-k1-paper-small"

@@ -63,7 +63,7 @@ def test_table_1_presets_keep_the_papers_learner_and_physics():
     for name, cfg in paper.items():
         for field in ("her", "n_step", "critic_layer_norm", "actor_layer_norm", "relabel", "critics",
                       "solver_iterations", "integrator", "fresh_replay", "heading_frame", "learn_from_resets",
-                      "reset_outcome", "tilt_cost", "level_repeats"):
+                      "reset_outcome", "tilt_cost", "flip_cost", "level_repeats"):
             assert getattr(cfg, field) == getattr(default, field), (name, field)
     assert all("-paper" in name for name in paper)
 

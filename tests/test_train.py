@@ -270,6 +270,7 @@ def test_restore_round_trips_observations():
         (dict(learn_from_resets=True, reset_outcome="first"), "reset_outcome: 'first' is unknown"),
         (dict(reset_outcome="start"), "reset_outcome: 'start' needs learn_from_resets"),
         (dict(tilt_cost=-1.0), "tilt_cost: must be >= 0"),
+        (dict(flip_cost=-1.0), "flip_cost: must be >= 0"),
         (dict(tilt_cost=1.0), "tilt_cost: 'point_mass' has no torso to tilt"),
         (dict(level_repeats=(2,)), "level_repeats: empty .* or one entry >= 1 per level"),
         (dict(level_repeats=(2, 0)), "level_repeats"),
@@ -492,6 +493,34 @@ def test_n_step_target_ends_at_a_row_a_reset_cut():
     one = n_step_backup(rows, slots, batch, env, sigma, gamma, eps=0.3, steps=1)
     np.testing.assert_allclose(one.reward, [r[0], r[1], fall], rtol=1e-6)
     np.testing.assert_allclose(one.discount, [gamma, gamma, 0.0], rtol=1e-6)
+
+
+def test_a_flip_cost_keeps_the_rows_a_reset_cut_and_scores_them_as_an_absorbing_failure():
+    """With ``flip_cost`` every level's replay keeps a ``cut`` mark, and a cut row's target is
+    (r - flip_cost) / (1 - gamma) with nothing bootstrapped, one-step and n-step alike; rows no
+    reset cut keep the paper's target."""
+    from mjx_emp.learners.ddpg import GoalTransition
+
+    gamma, cost = 0.9, 2.0
+    plain = HEAgent(dataclasses.replace(TINY, gamma=gamma))
+    agent = HEAgent(dataclasses.replace(TINY, gamma=gamma, flip_cost=cost))
+    assert all(r.data.cut is None for r in plain.init(jax.random.key(0)).replay)
+    state = agent.init(jax.random.key(0))
+    assert all(r.data.cut is not None for r in state.replay)
+    obs = jnp.broadcast_to(jnp.asarray(agent.initial_obs), (2, agent.initial_obs.size))
+    rows = GoalTransition(obs=obs, goal=jnp.full((2, 2), 0.5), action=jnp.zeros((2, 2)), next_obs=obs,
+                          reached=jnp.zeros(2, bool), successor=jnp.array([1, 2], jnp.int32),
+                          cut=jnp.array([True, False]))
+    slots = jnp.array([0, 1])
+    for level in (0, 1):
+        reward = float(gce.goal_conditioned_reward(jnp.full(2, 0.5), jnp.asarray(agent.initial_obs[:2]),
+                                                   TINY.sigma_gc[level]))
+        backup = agent.gc_backup(level, rows, slots, rows)
+        np.testing.assert_allclose(backup.reward, [(reward - cost) / (1 - gamma), reward], rtol=1e-5)
+        np.testing.assert_allclose(backup.discount, [0.0, gamma])
+    walked = HEAgent(dataclasses.replace(agent.cfg, n_step=2)).gc_backup(0, rows, slots, rows)
+    np.testing.assert_allclose(walked.reward[0], agent.gc_backup(0, rows, slots, rows).reward[0], rtol=1e-5)
+    assert float(walked.discount[0]) == 0.0
 
 
 def test_tilt_cost_lowers_level_zero_rewards_by_the_torso_tilt():

@@ -69,25 +69,28 @@ def step_reward(goal: jax.Array, next_obs: jax.Array, env: Env, sigma: float, ti
     return reward - tilt_cost * (1.0 - env.up_axis_z(next_obs))
 
 
-def one_step_backup(batch: GoalTransition, env: Env, sigma: float, gamma: float, tilt_cost: float = 0.0) -> Backup:
+def one_step_backup(batch: GoalTransition, env: Env, sigma: float, gamma: float, tilt_cost: float = 0.0,
+                    flip_cost: float = 0.0) -> Backup:
     """The paper's one-step target: r = log N(goal; h(s'), sigma) (less a tilt cost, see
     :func:`step_reward`), discount gamma until reached; rows a reset ended, in a replay that
-    keeps them, are scored by :func:`cut_backup`."""
+    keeps them, are scored by :func:`cut_backup` (with ``flip_cost``)."""
     reward = step_reward(batch.goal, batch.next_obs, env, sigma, tilt_cost)
     backup = Backup(reward=reward, discount=gce.goal_conditioned_discount(batch.reached, gamma),
                     next_obs=batch.next_obs)
-    return backup if batch.cut is None else cut_backup(backup, batch.cut, gamma)
+    return backup if batch.cut is None else cut_backup(backup, batch.cut, gamma, flip_cost)
 
 
-def cut_backup(backup: Backup, cut: jax.Array, gamma: float) -> Backup:
-    """``backup`` where a reset ended the task: the robot stays where it fell, so the action is
-    scored as its reward for ever after, r / (1 - gamma), with nothing left to bootstrap."""
-    return backup.replace(reward=jnp.where(cut, backup.reward / (1.0 - gamma), backup.reward),
+def cut_backup(backup: Backup, cut: jax.Array, gamma: float, flip_cost: float = 0.0) -> Backup:
+    """``backup`` where a reset ended the task: an absorbing state with nothing left to
+    bootstrap, where the robot stays where it fell and pays ``flip_cost`` every step, so the
+    action is scored as (r - flip_cost) / (1 - gamma). At 0 a flip costs only the reach it
+    lost."""
+    return backup.replace(reward=jnp.where(cut, (backup.reward - flip_cost) / (1.0 - gamma), backup.reward),
                           discount=jnp.where(cut, 0.0, backup.discount))
 
 
 def n_step_backup(rows: GoalTransition, slots: jax.Array, batch: GoalTransition, env: Env, sigma: float,
-                  gamma: float, eps: float, steps: int, tilt_cost: float = 0.0) -> Backup:
+                  gamma: float, eps: float, steps: int, tilt_cost: float = 0.0, flip_cost: float = 0.0) -> Backup:
     """An n-step target for ``batch`` (the rows at ``slots`` of the stored ``rows``, goals possibly relabelled).
 
     Follows each row's episode for up to ``steps`` stored transitions: sum_j gamma^j r_j,
@@ -104,7 +107,7 @@ def n_step_backup(rows: GoalTransition, slots: jax.Array, batch: GoalTransition,
     step = Backup(reward=step_reward(batch.goal, next_obs, env, sigma, tilt_cost),
                   discount=gce.goal_conditioned_discount(reached, gamma), next_obs=next_obs)
     if rows.cut is not None:  # a reset ends the walk at the row it cut (the episode's last)
-        step = cut_backup(step, rows.cut[walk], gamma)
+        step = cut_backup(step, rows.cut[walk], gamma, flip_cost)
     total, discount, boot = jnp.zeros_like(step.reward[0]), jnp.ones_like(step.reward[0]), batch.next_obs
     going = jnp.ones_like(exists[0])
     for j in range(steps):
@@ -148,7 +151,7 @@ def reward_cap(goal_size: int, sigma: float, gamma: float) -> float:
 
 
 def ddpg_losses(policy, q_value, learner: DDPGLearner, batch: GoalTransition, env: Env, sigma: float, gamma: float,
-                backup: Backup | None = None):
+                backup: Backup | None = None, flip_cost: float = 0.0):
     """(critic loss, actor loss) functions of one goal-conditioned DDPG minibatch.
 
     ``policy(actor, obs, goal)`` is the deterministic policy over a batch and
@@ -156,10 +159,11 @@ def ddpg_losses(policy, q_value, learner: DDPGLearner, batch: GoalTransition, en
     clipped double-Q ensemble, whose targets bootstrap from the smallest. The reward is
     the paper's log N(goal; h(s'), sigma); the discount drops to 0 once the goal is
     reached, and bootstrapped values are capped at :func:`reward_cap`. ``backup`` replaces
-    the one-step target (an n-step one, say). Every goal-conditioned level of phase 1, and
-    phase 2's added level, learn with these losses.
+    the one-step target (an n-step one, say); rows a reset cut short, where the replay keeps
+    them, are scored by :func:`cut_backup` with ``flip_cost``. Every goal-conditioned level of
+    phase 1, and phase 2's added level, learn with these losses.
     """
-    backup = one_step_backup(batch, env, sigma, gamma) if backup is None else backup
+    backup = one_step_backup(batch, env, sigma, gamma, flip_cost=flip_cost) if backup is None else backup
     next_action = policy(learner.target_actor, backup.next_obs, batch.goal)
     next_q = q_value(learner.target_critic, backup.next_obs, batch.goal, next_action)
     if next_q.ndim > backup.reward.ndim:

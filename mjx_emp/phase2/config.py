@@ -74,6 +74,12 @@ class Phase2Config:
     robot stayed where it fell (``learners.ddpg.cut_backup``), so the policy learns what a
     flip costs. Off: those attempts are dropped, as every transition a reset cuts is in phase 1,
     and the policy never sees one."""
+    flip_cost: float = 0.0
+    """A flipped attempt as an absorbing failure: with a cost > 0 the attempts a reset ended
+    are kept (as with ``learn_from_resets``) and worth (r - flip_cost) / (1 - gamma), the robot
+    paying the cost every step after (``learners.ddpg.cut_backup``), so the policy learns to
+    ask for subgoals whose skills keep it on its feet. In units of the reward,
+    log N(goal; h(s'), sigma). 0: a flip costs only the reach it lost."""
     aim_prior: bool = False
     """Start the policy as the scripted aimed one (each subgoal straight at the goal, within the
     top goal space) and learn a correction to it: the actor's output is added before the tanh to
@@ -94,6 +100,12 @@ _P2_POSITIVE = ("n", "epochs", "max_env_steps", "num_envs", "iterations", "grad_
                 "replay_capacity", "eval_rounds")
 
 
+def keeps_cut_attempts(cfg: Phase2Config) -> bool:
+    """Whether phase 2's replay keeps the attempts a reset cut short (``learn_from_resets`` or a
+    ``flip_cost``)."""
+    return cfg.learn_from_resets or cfg.flip_cost > 0.0
+
+
 def check_phase2_config(cfg: Phase2Config, goal_size: int | None = None) -> None:
     """Raise ConfigError naming the first invalid field of ``cfg`` (``goal_size``: the domain's)."""
     check_counts(cfg, _P2_POSITIVE)
@@ -110,6 +122,8 @@ def check_phase2_config(cfg: Phase2Config, goal_size: int | None = None) -> None
     check_learning(cfg, ("actor_lr", "critic_lr"), ("action_noise",))
     if not cfg.aim_weight >= 0:
         raise ConfigError(f"aim_weight: must be >= 0; got {cfg.aim_weight}")
+    if not cfg.flip_cost >= 0:
+        raise ConfigError(f"flip_cost: must be >= 0; got {cfg.flip_cost}")
     if cfg.aim_weight > 0 and not cfg.aim_prior:
         raise ConfigError(f"aim_weight: a cost of leaving the aim prior needs aim_prior True; got {cfg.aim_weight} "
                           "with aim_prior False")

@@ -54,7 +54,7 @@ from mjx_emp.nets import (
     level_policy,
     random_policy,
 )
-from mjx_emp.phase2.config import Phase2Config, check_phase2_config
+from mjx_emp.phase2.config import Phase2Config, check_phase2_config, keeps_cut_attempts
 from mjx_emp.replay import (
     ReplayBuffer,
     flatten_rows,
@@ -166,7 +166,7 @@ class Phase2Loop:
         actor_tx, critic_tx = self.optimizers
         learner = DDPGLearner(actor, critic, actor, critic, actor_tx.init(actor), critic_tx.init(critic))
         row = GoalTransition(obs, goal, action, obs, jnp.zeros((), bool),
-                             cut=jnp.zeros((), bool) if self.cfg.learn_from_resets else None)
+                             cut=jnp.zeros((), bool) if keeps_cut_attempts(self.cfg) else None)
         return learner, replay_init(row, self.cfg.replay_capacity)
 
     def update(self, state: Any, key: jax.Array) -> tuple[Any, jax.Array]:
@@ -177,7 +177,7 @@ class Phase2Loop:
 
         def step(learner: DDPGLearner, step_key):
             batch = replay_sample(state.replay, step_key, cfg.batch_size)
-            losses = ddpg_losses(act, self.q_value, learner, batch, self.env, cfg.sigma, cfg.gamma)
+            losses = ddpg_losses(act, self.q_value, learner, batch, self.env, cfg.sigma, cfg.gamma, flip_cost=cfg.flip_cost)
             if cfg.aim_weight > 0:
                 losses = (losses[0], self.anchored_actor_loss(act, batch))
             return ddpg_step(learner, losses, actor_tx, critic_tx, cfg.tau)
@@ -402,7 +402,7 @@ class Phase2Trainer(Phase2Loop):
         def absorb(kept, transitions, episodes, stats):
             replay, running, totals = kept
             top, bottom = transitions[k], transitions[0]
-            keep_cut = self.cfg.learn_from_resets  # the attempt a reset ended, at its last state before the reset
+            keep_cut = keeps_cut_attempts(self.cfg)  # the attempt a reset ended, at its last state before the reset
             rows, stored = goal_transitions(top, keep_cut=keep_cut), stored_rows(top, keep_cut)
             replay = replay_insert(replay, flatten_rows(rows), flatten_rows(stored) & store)
             distance = jnp.linalg.norm(self.env.goal_of_obs(bottom.next_obs) - top.goal, axis=-1)

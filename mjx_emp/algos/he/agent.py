@@ -32,6 +32,7 @@ from mjx_emp.algos.he.config import (
     GcrlConfig,
     HEConfig,
     check_gcrl_config,
+    keeps_cut_rows,
     check_train_config,
 )
 from mjx_emp.algos.he.networks import HENetworks
@@ -257,7 +258,7 @@ class HEAgent:
             gs_critic = self.nets.critic_net.init(keys[3], jnp.concatenate([env.features(obs), goal, gs_action]))
             goal_spaces.append(GoalSpaceLearner(gs_actor, gs_critic, opt["gs_actor"].init(gs_actor), opt["gs_critic"].init(gs_critic)))
             row = GoalTransition(obs, goal, action, obs, jnp.zeros((), bool), successor=jnp.zeros((), jnp.int32),
-                                 cut=jnp.zeros((), bool) if cfg.learn_from_resets else None)
+                                 cut=jnp.zeros((), bool) if keeps_cut_rows(cfg) else None)
             replay.append(replay_init(row, cfg.replay_capacity))
             goal_space_replay.append(replay_init(GoalSpaceSample(obs, goal, gs_action, jnp.zeros(())), cfg.gs_replay_capacity))
             start_buffer = replay_init(obs, cfg.start_capacity)
@@ -350,7 +351,7 @@ class HEAgent:
 
         GC: every valid root transition goes to the level's replay. GS: every finished root
         episode goes to the goal-space replay. With ``learn_from_resets`` both also keep
-        what a reset cut short. With ``fresh_replay`` the buffer an item
+        what a reset cut short; with a ``flip_cost`` the replay does. With ``fresh_replay`` the buffer an item
         fills is emptied first (the paper's fresh D per call). EVAL: nothing is stored
         (success and distance are read from each environment's first episode in every
         mode; an episode a reset cut short, a flipped Ant, counts as a failure scored at
@@ -370,7 +371,7 @@ class HEAgent:
             (replay, goal_space_replay, starts, last), totals = kept
             replay, last = zip(*(
                 self._store_linked(replay[i], last[i], transitions[i], (root == i) & (mode == MODE_GC),
-                                   cfg.learn_from_resets)
+                                   keeps_cut_rows(cfg))
                 for i in range(cfg.k)
             ))
             transitions = flatten_rows(transitions)
@@ -461,8 +462,8 @@ class HEAgent:
         tilt_cost = cfg.tilt_cost if level == 0 else 0.0
         if cfg.n_step > 1:
             return n_step_backup(rows, slots, batch, self.env, cfg.sigma_gc[level], cfg.gamma, cfg.eps[level],
-                                 cfg.n_step, tilt_cost)
-        return one_step_backup(batch, self.env, cfg.sigma_gc[level], cfg.gamma, tilt_cost)
+                                 cfg.n_step, tilt_cost, cfg.flip_cost)
+        return one_step_backup(batch, self.env, cfg.sigma_gc[level], cfg.gamma, tilt_cost, cfg.flip_cost)
 
     def gc_update(self, level: int):
         cfg, opt = self.cfg, self.optimizers

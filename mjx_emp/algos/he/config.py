@@ -142,6 +142,15 @@ class HEConfig:
     scored where ``reset_outcome`` says (by default their last state before the reset). False
     drops both, as no transition of the task ends in a reset (the paper does not say what its
     Brax Ant did on its back)."""
+    flip_cost: float = 0.0
+    """A flip as an absorbing failure the goal-conditioned levels learn: with a cost > 0 every
+    level keeps the actions a reset (a flipped Ant) cut short, as terminal rows worth
+    (r - flip_cost) / (1 - gamma), r being the reward at the last state before the reset: the
+    robot stays there and pays the cost every step after (``learners.ddpg.cut_backup``). In
+    units of the reward, log N(goal; h(s'), sigma_gc): a cost of c is the reward lost by
+    ending sqrt(2 c) sigma_gc from the goal instead of on it. 0 drops those rows (the paper's setting;
+    with ``learn_from_resets`` they are kept at no cost); the goal spaces learn from the
+    episodes a reset ended only with ``learn_from_resets``."""
     reset_outcome: str = "last"
     """With ``learn_from_resets``, where the goal spaces score an episode a reset cut short:
     "last" at its last state before the reset; "start" as if the skill never left its start
@@ -197,6 +206,8 @@ def check_train_config(cfg: HEConfig, positive: tuple[str, ...] = _POSITIVE) -> 
     if cfg.level_repeats and (len(cfg.level_repeats) != cfg.k or any(r < 1 for r in cfg.level_repeats)):
         raise ConfigError(f"level_repeats: empty (each level once) or one entry >= 1 per level (k={cfg.k} from n); "
                           f"got {cfg.level_repeats}")
+    if not cfg.flip_cost >= 0.0:
+        raise ConfigError(f"flip_cost: must be >= 0; got {cfg.flip_cost}")
     if not cfg.tilt_cost >= 0.0:
         raise ConfigError(f"tilt_cost: must be >= 0; got {cfg.tilt_cost}")
     if cfg.tilt_cost > 0.0 and not tiltable(DOMAINS[cfg.env]):
@@ -239,6 +250,12 @@ def check_train_config(cfg: HEConfig, positive: tuple[str, ...] = _POSITIVE) -> 
     check_capacity(cfg, "gs_replay_capacity", {"a minibatch (batch_size)": cfg.batch_size,
                                                "one episode per environment (num_envs)": cfg.num_envs})
     check_capacity(cfg, "start_capacity", {"one start state per environment (num_envs)": cfg.num_envs})
+
+
+def keeps_cut_rows(cfg: HEConfig) -> bool:
+    """Whether the goal-conditioned replays keep the actions a reset cut short (``learn_from_resets``
+    or a ``flip_cost``)."""
+    return cfg.learn_from_resets or cfg.flip_cost > 0.0
 
 
 @dataclasses.dataclass(frozen=True)
