@@ -123,6 +123,37 @@ def test_a_killed_sweep_called_again_through_submitit_ends_with_the_same_rows(sw
     assert [comparable(r) for r in rows] == [comparable(r) for r in read_rows(swept / "rows.jsonl")]
 
 
+def test_a_row_with_skills_from_builds_its_phase_2_on_a_copy_of_the_other_rows_runs(swept, tmp_path):
+    """A phase-2 variant on the smoke spec's he-k1 skills: the spec with one more row that names
+    he-k1 as its skills, swept again in-process into the same runs and store. Only the new row is
+    done: seed 1's phase 1 copied (not trained), a phase 2 with the row's own overrides, one row
+    whose training figures are he-k1's and whose phase 2 is its own."""
+    import shutil
+
+    from mjx_emp.run.sweep import sweep as run_sweep
+
+    spec = tmp_path / "smoke-point-mass.toml"
+    spec.write_text(SMOKE.read_text() + '\n[[row]]\nname = "he-k1-p2-flip-cost"\nskills_from = "he-k1"\nseeds = [1]\n'
+                    'phase2 = "auto"\nphase2_overrides = { epochs = 2, num_envs = 8, hidden = [32], batch_size = 32, '
+                    'grad_steps = 5, iterations = 2, replay_capacity = 2048, flip_cost = 5.0 }\n')
+    results = tmp_path / "rows.jsonl"
+    shutil.copy(swept / "rows.jsonl", results)
+    source = swept / "runs" / "smoke-point-mass" / "he-k1-s1"
+    metrics_before = (source / "metrics.jsonl").stat().st_mtime_ns
+    written = run_sweep(str(spec), runs=str(swept / "runs"), results=str(results), report=lambda line: None)
+    (row,) = written
+    assert row["row"] == "he-k1-p2-flip-cost" and row["seed"] == 1
+    assert row["evaluation"]["did"][0] == "copied phase 1 of seed 1 from row he-k1"
+    assert row["phase2_config"]["flip_cost"] == 5.0
+    (source_row,) = [r for r in read_rows(results) if (r["row"], r["seed"]) == ("he-k1", 1)]
+    assert row["curves"]["env_steps"] == source_row["curves"]["env_steps"]
+    assert row["figures"]["levels"] == source_row["figures"]["levels"]  # the same skills, evaluated alike
+    assert row["train"]["config"] == source_row["train"]["config"]
+    assert (source / "metrics.jsonl").stat().st_mtime_ns == metrics_before  # the source run is left alone
+    assert not (source.parent / "he-k1-p2-flip-cost-s1.partial").exists()
+    assert run_sweep(str(spec), runs=str(swept / "runs"), results=str(results), report=lambda line: None) == []
+
+
 SPEC_HEAD = 'name = "bad"\n'
 GOOD_ROW = '[[row]]\nname = "a"\npreset = "point-mass-k1"\nseeds = [0]\n'
 
@@ -142,6 +173,11 @@ GOOD_ROW = '[[row]]\nname = "a"\npreset = "point-mass-k1"\nseeds = [0]\n'
     ('coverage_draws = 1001\n' + GOOD_ROW, ["coverage_draws", "[1, 1000]"]),
     ('[report]\nreps = 0\n' + GOOD_ROW, ["report.reps", ">= 1"]),
     ('[report]\nrows = "he-*"\n' + GOOD_ROW, ["report.rows", "list"]),
+    (GOOD_ROW + '[[row]]\nname = "b"\nskills_from = "c"\nphase2 = "auto"\n', ["row 'b'", "skills_from", "'c'"]),
+    (GOOD_ROW + '[[row]]\nname = "b"\nskills_from = "a"\npreset = "point-mass-k2"\nphase2 = "auto"\n',
+     ["row 'b'", "preset", "takes its phase 1 from row 'a'"]),
+    (GOOD_ROW + '[[row]]\nname = "b"\nskills_from = "a"\nseeds = [3]\nphase2 = "auto"\n', ["row 'b'", "seeds"]),
+    (GOOD_ROW + '[[row]]\nname = "b"\nskills_from = "a"\n', ["row 'b'", "phase2", "needs a phase 2"]),
 ])
 def test_a_bad_spec_is_refused_naming_the_row_and_the_field(tmp_path, body, named):
     path = tmp_path / "bad.toml"

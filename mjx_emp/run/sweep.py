@@ -18,6 +18,12 @@ seeds, an env-step budget, the phase-2 task and the evaluation wanted::
     phase2 = "auto"                 # a phase-2 preset, "auto" (the run's own task) or absent (none)
     phase2_overrides = { epochs = 10 }
 
+    [[row]]
+    name = "he-k1-flip-cost"
+    skills_from = "he-k1"           # phase 2 (and evaluation) of another row's phase-1 runs
+    phase2 = "auto"
+    phase2_overrides = { epochs = 10, flip_cost = 5.0 }
+
 Each (row, seed) is a run directory RUNS/<spec>/<row>-s<seed>. The seeds of a row train as one
 vmapped program (`mjx-emp train --seeds`) and resume as one, so an interrupted sweep ends with
 the same numbers as one that was never stopped. A second call trains nothing that is finished
@@ -54,7 +60,9 @@ from mjx_emp.run.rows import RESULTS_DIR, append_row, read_rows
 
 SPEC_KEYS = ("name", "eval_seed", "eval_seed_per_run", "coverage_draws", "episodes", "runs", "slurm", "report", "row")
 ROW_KEYS = ("name", "preset", "seeds", "overrides", "max_env_steps", "phase2", "phase2_overrides", "episodes",
-            "group_seeds")
+            "group_seeds", "skills_from")
+PHASE1_KEYS = ("preset", "overrides", "max_env_steps", "group_seeds")
+"""What a row whose skills come from another row (``skills_from``) takes from that row instead."""
 REPORT_KEYS = ("metrics", "baseline", "reps", "rows")
 """What a spec's ``[report]`` table may set: `mjx-emp report`'s defaults for the spec."""
 AUTO = "auto"
@@ -77,6 +85,9 @@ class Row:
     phase2: Phase2Config | None
     episodes: int
     group_seeds: bool
+    skills_from: str | None = None
+    """Another row whose phase-1 runs this row's phase 2 builds on (a copy of each seed's run,
+    so that its phase 2 gets a run directory of its own); None: the row trains its own."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -116,6 +127,8 @@ class Job:
     coverage_draws: int
     log: str
     command: str
+    skills_base: str | None = None
+    """The stem of the runs a ``skills_from`` row copies its phase 1 from (None: it trains its own)."""
 
 
 def _fail(where: str, message: str) -> ConfigError:
@@ -149,8 +162,9 @@ def _with_overrides(base: Any, overrides: dict[str, Any], where: str, field: str
         raise _fail(where, f"{field}.{err}") from None
 
 
-def check_row(raw: Any, index: int, default_episodes: int) -> Row:
-    """One ``[[row]]`` table as a :class:`Row`, every field checked (errors name the row)."""
+def check_row(raw: Any, index: int, default_episodes: int, earlier: dict[str, Row] | None = None) -> Row:
+    """One ``[[row]]`` table as a :class:`Row`, every field checked (errors name the row);
+    ``earlier``: the rows before it, by name, which ``skills_from`` may name."""
     if not isinstance(raw, dict):
         raise _fail(f"row {index}", f"must be a table ([[row]]); got {raw!r}")
     name = raw.get("name")
@@ -160,6 +174,8 @@ def check_row(raw: Any, index: int, default_episodes: int) -> Row:
     unknown = sorted(set(raw) - set(ROW_KEYS))
     if unknown:
         raise _fail(where, f"{unknown[0]}: not a row field; allowed: {', '.join(ROW_KEYS)}")
+    if "skills_from" in raw:
+        return _skills_from_row(raw, where, default_episodes, earlier or {})
     presets = all_presets()
     preset = raw.get("preset")
     if preset not in presets:
@@ -185,6 +201,41 @@ def check_row(raw: Any, index: int, default_episodes: int) -> Row:
         algorithm_of(config).check(config)
     except ConfigError as err:
         raise _fail(where, f"overrides: {err}") from None
+    phase2_preset, phase2_overrides, phase2 = _phase2_of_row(raw, config, where)
+    episodes = _integer(raw.get("episodes", default_episodes), where, "episodes", 1)
+    group_seeds = raw.get("group_seeds", True)
+    if not isinstance(group_seeds, bool):
+        raise _fail(where, f"group_seeds: must be true or false; got {group_seeds!r}")
+    return Row(name, preset, overrides, seeds, config, phase2_preset, phase2_overrides, phase2, episodes,
+               group_seeds and config.shards == 1 and len(seeds) > 1)
+
+
+def _skills_from_row(raw: dict, where: str, default_episodes: int, earlier: dict[str, Row]) -> Row:
+    """A row that builds its phase 2 on an earlier row's phase-1 runs: that row's preset,
+    overrides and budget, its seeds or some of them, and a phase 2 of its own."""
+    source = earlier.get(raw["skills_from"])
+    if source is None:
+        raise _fail(where, f"skills_from: {raw['skills_from']!r} is not a row before this one; rows before it: "
+                           f"{', '.join(earlier) or 'none'}")
+    taken = [key for key in PHASE1_KEYS if key in raw]
+    if taken:
+        raise _fail(where, f"{taken[0]}: a row with skills_from takes its phase 1 from row {source.name!r}; "
+                           f"leave out {', '.join(PHASE1_KEYS)}")
+    seeds = raw.get("seeds", list(source.seeds))
+    if not isinstance(seeds, list) or not seeds or not set(seeds) <= set(source.seeds) or len(set(seeds)) != len(seeds):
+        raise _fail(where, f"seeds: some of row {source.name!r}'s seeds {list(source.seeds)}, each once; got {seeds!r}")
+    phase2_preset, phase2_overrides, phase2 = _phase2_of_row(raw, source.config, where)
+    if phase2 is None:
+        raise _fail(where, "phase2: a row with skills_from needs a phase 2 (without one it is its source row)")
+    episodes = _integer(raw.get("episodes", default_episodes), where, "episodes", 1)
+    return dataclasses.replace(source, name=raw["name"], seeds=tuple(seeds), phase2_preset=phase2_preset,
+                               phase2_overrides=phase2_overrides, phase2=phase2, episodes=episodes,
+                               group_seeds=False, skills_from=source.name)
+
+
+def _phase2_of_row(raw: dict, config: Any, where: str) -> tuple[str | None, dict[str, Any], Phase2Config | None]:
+    """A row's phase-2 preset (``auto`` resolved for ``config``), its overrides and the config
+    they make (None without a phase 2)."""
     phase2_preset, phase2 = raw.get("phase2"), None
     phase2_overrides = _table(raw.get("phase2_overrides", {}), where, "phase2_overrides")
     if phase2_preset == AUTO:
@@ -203,12 +254,7 @@ def check_row(raw: Any, index: int, default_episodes: int) -> Row:
             raise _fail(where, f"phase2_overrides: {err}") from None
     elif phase2_overrides:
         raise _fail(where, "phase2_overrides: given without a phase2 preset")
-    episodes = _integer(raw.get("episodes", default_episodes), where, "episodes", 1)
-    group_seeds = raw.get("group_seeds", True)
-    if not isinstance(group_seeds, bool):
-        raise _fail(where, f"group_seeds: must be true or false; got {group_seeds!r}")
-    return Row(name, preset, overrides, seeds, config, phase2_preset, phase2_overrides, phase2, episodes,
-               group_seeds and config.shards == 1 and len(seeds) > 1)
+    return phase2_preset, phase2_overrides, phase2
 
 
 def check_report_table(report: Any) -> dict[str, Any]:
@@ -262,9 +308,11 @@ def load_spec(path: str | Path) -> Spec:
     rows = raw.get("row")
     if not isinstance(rows, list) or not rows:
         raise ConfigError("spec: row: give at least one [[row]] table")
-    checked = [check_row(row, index, episodes) for index, row in enumerate(rows)]
     seen: dict[str, Row] = {}
-    for row in checked:
+    checked = []
+    for index, raw_row in enumerate(rows):
+        row = check_row(raw_row, index, episodes, seen)
+        checked.append(row)
         if row.name in seen:
             raise ConfigError(f"row {row.name!r}: name: given twice; each row needs its own name")
         twin = next((other for other in seen.values() if (other.config, other.phase2) == (row.config, row.phase2)
@@ -363,6 +411,8 @@ def train_row(job: Job) -> list[str]:
     configs = [seed_config(row, seed) for seed in row.seeds]
     for run_dir, cfg in zip(dirs, configs):
         _same_config(run_dir, cfg, f"row {row.name!r}")
+    if job.skills_base is not None:
+        return copy_skills(job, dirs, configs)
     todo = [i for i, (d, cfg) in enumerate(zip(dirs, configs)) if not finished(d, cfg)]
     if not todo:
         return ["phase 1 finished earlier"]
@@ -386,6 +436,28 @@ def train_row(job: Job) -> list[str]:
             jobs.train(TrainExperiment(config=configs[i], run_dir=str(dirs[i])), record=record)
             done.append(f"trained seed {row.seeds[i]}")
     return done
+
+
+def copy_skills(job: Job, dirs: list[Path], configs: list[Any]) -> list[str]:
+    """A ``skills_from`` row's phase 1: each seed's finished run of the source row copied (less
+    its phase 2), so that this row's phase 2 has a run directory of its own. A source run not
+    finished yet is refused: its row's job trains it, and a later call copies it."""
+    import shutil
+
+    done = []
+    for seed, run_dir, cfg in zip(job.row.seeds, dirs, configs):
+        if (run_dir / store.CONFIG_FILE).exists():
+            continue
+        source = Path(store.seed_run_dirs(job.skills_base, (seed,))[0])
+        if not finished(source, cfg):
+            raise ConfigError(f"row {job.row.name!r}: skills_from: row {job.row.skills_from!r} has not finished phase "
+                              f"1 of seed {seed} ({source}); run the sweep again once it has")
+        partial = run_dir.with_name(run_dir.name + ".partial")  # a copy cut short never looks like a run
+        shutil.rmtree(partial, ignore_errors=True)
+        shutil.copytree(source, partial, ignore=shutil.ignore_patterns(store.PHASE2_SUBDIR, store.LOCK_FILE))
+        os.replace(partial, run_dir)
+        done.append(f"copied phase 1 of seed {seed} from row {job.row.skills_from}")
+    return done or ["phase 1 copied earlier"]
 
 
 def phase2_row(job: Job) -> list[str]:
@@ -491,6 +563,7 @@ def plan(spec: Spec, runs_root: Path, results: Path, command: str) -> Plan:
     """What a call must do: a job for each row with a seed whose stored row is missing or no
     longer what the spec asks (its training resumes or is left alone as its run directory says)."""
     stored = stored_rows(results, spec)
+    by_name = {row.name: row for row in spec.rows}
     jobs, current = [], []
     logs = runs_root / spec.name / "logs"
     for row in spec.rows:
@@ -500,9 +573,10 @@ def plan(spec: Spec, runs_root: Path, results: Path, command: str) -> Plan:
         current += fresh
         if len(fresh) < len(row.seeds):
             base = row_base(runs_root, spec, row)
+            skills = None if row.skills_from is None else row_base(runs_root, spec, by_name[row.skills_from])
             jobs.append(Job(spec.name, row, base, tuple(store.seed_run_dirs(base, row.seeds)),
                             tuple(spec.run_eval_seed(seed) for seed in row.seeds), spec.coverage_draws,
-                            str(logs / f"{row.name}.log"), command))
+                            str(logs / f"{row.name}.log"), command, skills))
     return Plan(jobs, current, sum(len(row.seeds) for row in spec.rows))
 
 
@@ -621,6 +695,12 @@ def describe_plan(spec: Spec) -> Iterator[str]:
         budget = f", stop at {row.config.max_env_steps:,} env steps" if row.config.max_env_steps else ""
         overrides = " ".join(f"--{k.replace('_', '-')} {v}" for k, v in row.overrides.items())
         phase2 = f"; phase 2 {row.phase2_preset}" if row.phase2 is not None else ""
+        if row.phase2_overrides:
+            phase2 += " " + " ".join(f"--{k.replace('_', '-')} {v}" for k, v in row.phase2_overrides.items())
+        if row.skills_from is not None:
+            yield (f"  {row.name}: the phase 1 of row {row.skills_from}, seeds {list(row.seeds)}{phase2}; "
+                   f"eval {row.episodes} episodes")
+            continue
         yield (f"  {row.name}: {row.preset} {overrides}".rstrip() + f", seeds {list(row.seeds)}, "
                f"{row.config.epochs} epochs{budget}{phase2}; eval {row.episodes} episodes")
 
