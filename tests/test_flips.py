@@ -123,3 +123,46 @@ def test_phase1_and_phase2_tables_of_a_trained_agent_find_the_planted_flip(plant
     assert phase2["by_attempt"][0]["episodes"] == 8
     text = "\n".join(flips.flip_text([flips.pooled([t]) for t in levels], flips.pooled([phase2])))
     assert "| 0 | 32 |" in text and "level 0 flips per primitive step" in text and "phase 2:" in text
+
+
+def test_the_reflex_hands_control_back_to_phase_2_once_the_torso_tilts_past_it(monkeypatch):
+    """A point mass whose tilt reads 100 x (x > 0): with ``reflex_tilt`` 0.5 no skill goes on
+    past the step that took the tilt over 0.5 from an attempt that began at most 0.5 (it ends
+    there and the top chooses again); without the reflex some do."""
+    import jax.numpy as jnp
+
+    from mjx_emp.phase2.goal_spaces import Phase2Trainer
+
+    monkeypatch.setattr(Env, "up_axis_z", lambda self, obs: 1.0 - 100.0 * jnp.maximum(obs[..., 0], 0.0))
+    agent, _, skills_state, _, _ = tiny_after_two_epochs()
+    trainer = Phase2Trainer(agent, TINY_PHASE2, top="aimed")
+    plan = trainer.greedy_episodes(trainer.init(skills_state))
+    threshold, top = 0.5, agent.cfg.k
+    counts = {}
+    for reflex in (0.0, threshold):
+        # Goals no skill reaches, so that every skill runs its n actions and can cross mid-way.
+        hierarchy = dataclasses.replace(plan.hierarchy, eps=(1e-4, 1e-4) + plan.hierarchy.eps[-1:], reflex_tilt=reflex)
+        episodes = flips.roll_first_episodes(dataclasses.replace(plan, hierarchy=hierarchy), jax.random.key(4), 16)
+        low, skill, root = episodes.levels[0], episodes.levels[top - 1], episodes.levels[top]
+        live = flips.in_first_episode(low, episodes.first_end)
+        # The state the root issued its current action in: the obs of the next root row that ends.
+        ends = np.asarray(root.valid | root.cut)
+        issue_tilt = np.full(ends.shape, np.nan)
+        for b in range(ends.shape[1]):
+            following = np.nan
+            for t in reversed(range(ends.shape[0])):
+                if ends[t, b]:
+                    following = float(flips.tilt(PitchlessEnv(), np.asarray(root.obs)[t, b]))
+                issue_tilt[t, b] = following
+        crossed = live & np.asarray(low.valid) & (flips.tilt(PitchlessEnv(), low.next_obs) > threshold) \
+            & (issue_tilt <= threshold)
+        counts[reflex] = (int((crossed & ~np.asarray(skill.final)).sum()), int((crossed & np.asarray(skill.final)).sum()))
+    assert counts[threshold][0] == 0 and counts[threshold][1] > 0, counts  # handed back at every crossing
+    assert counts[0.0][0] > 0, counts  # without the reflex the skills go on past it
+
+
+class PitchlessEnv:
+    """The tilt the reflex test plants, read back on the host: 100 x (x > 0)."""
+
+    def up_axis_z(self, obs):
+        return 1.0 - 100.0 * np.maximum(np.asarray(obs)[..., 0], 0.0)

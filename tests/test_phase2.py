@@ -149,6 +149,12 @@ def test_attempts_a_reset_ended_are_kept_as_terminal_rows_only_when_asked(tiny_p
         assert np.isfinite(np.asarray(losses)).all()
 
 
+def test_a_reflex_needs_skills_of_a_robot_with_a_torso(tiny_phase2):
+    trainer, _, _ = tiny_phase2
+    with pytest.raises(ConfigError, match="reflex_tilt: 'point_mass' has no torso to tilt"):
+        Phase2Trainer(trainer.phase1, dataclasses.replace(TINY_PHASE2, reflex_tilt=0.5))
+
+
 def test_a_cut_backup_scores_the_fall_for_ever_and_bootstraps_nothing():
     from mjx_emp.learners.ddpg import Backup, cut_backup
 
@@ -171,6 +177,7 @@ def test_a_cut_backup_scores_the_fall_for_ever_and_bootstraps_nothing():
     ("aim_weight", 1.0, "aim_weight: a cost of leaving the aim prior needs aim_prior True"),
     ("aim_weight", -1.0, "aim_weight: must be >= 0"),
     ("flip_cost", -1.0, "flip_cost: must be >= 0"),
+    ("reflex_tilt", 2.5, "reflex_tilt: a tilt in [0, 2)"),
 ])
 def test_bad_phase2_values_name_the_field(field, value, message):
     with pytest.raises(ConfigError, match=message.replace("[", r"\[").replace("(", r"\(").replace(")", r"\)")):
@@ -360,11 +367,11 @@ def test_attempt_rows_follow_each_first_episode_attempt_by_attempt():
     assert [r["upside_down_after"] for r in rows] == [0.0, 0.5]
 
 
-def test_attempt_figures_of_the_aimed_policy_start_with_every_episode(tiny_phase2):
-    from mjx_emp.run.evaluate import attempt_figures
+def test_attempts_of_the_aimed_policy_start_with_every_episode(tiny_phase2):
+    from mjx_emp.run.flips import phase2_flips
 
     trainer, _, state = tiny_phase2
-    rows = attempt_figures(dataclasses.replace(trainer, top="aimed"), state, jax.random.key(0), envs=8)
+    rows = phase2_flips(dataclasses.replace(trainer, top="aimed"), state, jax.random.key(0), envs=8)["by_attempt"]
     assert rows[0]["attempt"] == 0 and rows[0]["episodes"] == 8
     counts = [r["episodes"] for r in rows]
     assert counts == sorted(counts, reverse=True) and len(rows) <= trainer.cfg.n

@@ -80,6 +80,12 @@ class Phase2Config:
     paying the cost every step after (``learners.ddpg.cut_backup``), so the policy learns to
     ask for subgoals whose skills keep it on its feet. In units of the reward,
     log N(goal; h(s'), sigma). 0: a flip costs only the reach it lost."""
+    reflex_tilt: float = 0.0
+    """A reflex (0: none): a skill hands control back to the policy on top, ending its attempt
+    early with no reset, once the torso's tilt (1 - z of its up axis: 0 upright, 1 on its side)
+    passes this, so the policy chooses its next subgoal before the robot is on its back
+    (``rollout.hierarchy.Hierarchy.reflex_tilt``). The attempt counts as one of the n. A
+    threshold to start from is the one the flip table's warning reports (`mjx-emp eval`)."""
     aim_prior: bool = False
     """Start the policy as the scripted aimed one (each subgoal straight at the goal, within the
     top goal space) and learn a correction to it: the actor's output is added before the tanh to
@@ -124,6 +130,8 @@ def check_phase2_config(cfg: Phase2Config, goal_size: int | None = None) -> None
         raise ConfigError(f"aim_weight: must be >= 0; got {cfg.aim_weight}")
     if not cfg.flip_cost >= 0:
         raise ConfigError(f"flip_cost: must be >= 0; got {cfg.flip_cost}")
+    if not 0 <= cfg.reflex_tilt < 2:
+        raise ConfigError(f"reflex_tilt: a tilt in [0, 2) (0: no reflex; 1 is on its side); got {cfg.reflex_tilt}")
     if cfg.aim_weight > 0 and not cfg.aim_prior:
         raise ConfigError(f"aim_weight: a cost of leaving the aim prior needs aim_prior True; got {cfg.aim_weight} "
                           "with aim_prior False")

@@ -33,6 +33,7 @@ from flax import struct
 from mjx_emp.algos.he.agent import HEAgent, HEState
 from mjx_emp.checks import compile_identity
 from mjx_emp.counters import StepCounter
+from mjx_emp.envs.registry import DOMAINS, tiltable
 from mjx_emp.errors import ConfigError
 from mjx_emp.learners.common import all_finite
 from mjx_emp.learners.ddpg import (
@@ -317,6 +318,10 @@ class Phase2Trainer(Phase2Loop):
 
     def __post_init__(self):
         check_phase2_config(self.cfg, self.phase1.env.goal_size)
+        if self.cfg.reflex_tilt > 0 and not tiltable(DOMAINS[self.phase1.cfg.env]):
+            allowed = sorted(name for name, spec in DOMAINS.items() if tiltable(spec))
+            raise ConfigError(f"reflex_tilt: {self.phase1.cfg.env!r} has no torso to tilt; allowed only over skills of "
+                              f"env in {allowed}")
         if self.top not in TOP_POLICIES:
             raise ConfigError(f"top: {self.top!r} is unknown; allowed values: {list(TOP_POLICIES)}")
         object.__setattr__(self, "identity", compile_identity(self.cfg))
@@ -329,6 +334,7 @@ class Phase2Trainer(Phase2Loop):
         hierarchy = Hierarchy(
             self.env, self.phase1.hierarchy.policies + (policy,),
             n=tuple(phase1.n) + (self.cfg.n,), eps=tuple(phase1.eps) + (self.cfg.eps,),
+            reflex_tilt=self.cfg.reflex_tilt,
         )
         object.__setattr__(self, "hierarchy", hierarchy)
 

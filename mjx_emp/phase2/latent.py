@@ -86,6 +86,10 @@ class FlatPhase2Trainer(Phase2Loop):
         if self.cfg.aim_prior:
             raise ConfigError("aim_prior: a skill z has no subgoal to aim at the goal; allowed only over skills "
                               "addressed by goal-space subgoals (HE, GCRL), so use False here")
+        if self.cfg.reflex_tilt > 0:
+            raise ConfigError(f"reflex_tilt: the latent skills' phase 2 runs each skill for its fixed length; "
+                              f"allowed only over skills addressed by goal-space subgoals (HE, GCRL), so use 0 "
+                              f"here; got {self.cfg.reflex_tilt}")
         if self.cfg.flip_cost > 0:
             raise ConfigError(f"flip_cost: the latent skills' phase 2 scores a flipped attempt at its last state "
                               f"only; allowed only over skills addressed by goal-space subgoals (HE, GCRL), so use 0 "

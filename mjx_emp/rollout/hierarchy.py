@@ -89,11 +89,19 @@ class Hierarchy:
     n: tuple[int, ...]
     eps: tuple[float, ...]
     driver: Driver | None = None
+    reflex_tilt: float = 0.0
+    """A reflex (0: none): every level below the root hands control back (its action ends,
+    neither reached nor reset) at the first step after which the torso's tilt, 1 - z of its up
+    axis, exceeds this, having been at most this when the root issued its current action; the
+    root then chooses again from where the robot is. Root-level actions and episodes are not
+    cut short by it."""
 
     def __post_init__(self):
         if not self.policies:
             raise ConfigError("policies: need at least one level (k >= 1)")
         check_levels(self.n, self.eps, k=len(self.policies))
+        if not self.reflex_tilt >= 0.0:
+            raise ConfigError(f"reflex_tilt: must be >= 0 (0: no reflex); got {self.reflex_tilt}")
 
     @property
     def k(self) -> int:
@@ -374,6 +382,18 @@ def _check_root(hierarchy: Hierarchy, root: int | jax.Array) -> None:
         raise ConfigError(f"root must be in 0..{hierarchy.rows - 1}{driver}; got {root}")
 
 
+def _reflex(hierarchy: Hierarchy, root: jax.Array, issued_obs: list[jax.Array], last_obs: jax.Array) -> jax.Array:
+    """[B]: where the reflex hands control back to the root this step (see
+    :attr:`Hierarchy.reflex_tilt`): the tilt just passed the threshold, from at most it when the
+    root issued its current action."""
+    batch = last_obs.shape[0]
+    if hierarchy.reflex_tilt == 0.0:
+        return jnp.zeros(batch, bool)
+    env = hierarchy.env
+    tilt_at_issue = 1.0 - jax.vmap(env.up_axis_z)(jnp.stack(issued_obs)[root])
+    return (1.0 - jax.vmap(env.up_axis_z)(last_obs) > hierarchy.reflex_tilt) & (tilt_at_issue <= hierarchy.reflex_tilt)
+
+
 def _scan_step(hierarchy, params, start, start_params, state: RolloutState, _):
     """One primitive step of every environment: act, simulate, hand back, restart, re-issue."""
     env = hierarchy.env
@@ -393,6 +413,7 @@ def _scan_step(hierarchy, params, start, start_params, state: RolloutState, _):
     next_obs = jax.vmap(env.observe)(env_state)
     pos = jax.vmap(env.goal_of)(env_state)
     last_obs = jnp.where(broke[:, None], obs, next_obs)  # a reset's step ends where it began
+    handed_back = _reflex(hierarchy, root, issued_obs, last_obs) & ~broke
 
     # 2. Bottom-up: levels whose action completed count it and check their goal.
     transitions, finished, reached_by_level = [], [], []
@@ -404,7 +425,7 @@ def _scan_step(hierarchy, params, start, start_params, state: RolloutState, _):
             reached = completed & (jnp.linalg.norm(pos - goals[i], axis=-1) < hierarchy.eps[i])
         else:  # the driver has no goal to reach
             reached = jnp.zeros(batch, bool)
-        done = completed & (reached | (count >= hierarchy.actions_per_episode(i)) | broke)
+        done = completed & (reached | (count >= hierarchy.actions_per_episode(i)) | broke | (handed_back & (i < root)))
         transitions.append(
             Transition(
                 obs=issued_obs[i], goal=goals[i], action=issued_action[i], next_obs=last_obs,
