@@ -609,6 +609,10 @@ def test_reset_outcome_scores_a_fallen_skill_as_one_that_never_moved_only_when_a
     np.testing.assert_allclose(start[~np.asarray(cut)], last[~np.asarray(cut)])
     np.testing.assert_allclose(start[np.asarray(cut)], never_moved[np.asarray(cut)])
     assert not np.allclose(start[np.asarray(cut)], last[np.asarray(cut)])
+    # With a flip cost a goal whose skill flipped the robot also pays it; the others do not.
+    costly = np.asarray(HEAgent(dataclasses.replace(TINY, learn_from_resets=True, flip_cost=3.0))
+                        ._goal_space_sample(0, episodes).reward)
+    np.testing.assert_allclose(costly, last - 3.0 * np.asarray(cut), rtol=1e-6)
 
 
 def test_layer_norm_only_where_configured():

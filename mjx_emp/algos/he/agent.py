@@ -440,6 +440,7 @@ class HEAgent:
             self.env.goal_of_obs(info.obs), z, self.env.goal_of_obs(final_obs),
             info.action, self.cfg.sigma_gs[level],
         )
+        reward = reward - self.cfg.flip_cost * episodes.cut  # a goal whose skill flipped the robot: a failure
         return GoalSpaceSample(obs=info.obs, noise=info.noise, action=info.action, reward=reward)
 
     # ---- learning -------------------------------------------------------------------

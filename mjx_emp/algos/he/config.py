@@ -149,8 +149,9 @@ class HEConfig:
     robot stays there and pays the cost every step after (``learners.ddpg.cut_backup``). In
     units of the reward, log N(goal; h(s'), sigma_gc): a cost of c is the reward lost by
     ending sqrt(2 c) sigma_gc from the goal instead of on it. 0 drops those rows (the paper's setting;
-    with ``learn_from_resets`` they are kept at no cost); the goal spaces learn from the
-    episodes a reset ended only with ``learn_from_resets``."""
+    with ``learn_from_resets`` they are kept at no cost). With ``learn_from_resets`` the goal
+    spaces also learn from the episodes a reset ended, each scored (where ``reset_outcome``
+    says) less this cost, so that a box whose goals make its skills flip earns less."""
     reset_outcome: str = "last"
     """With ``learn_from_resets``, where the goal spaces score an episode a reset cut short:
     "last" at its last state before the reset; "start" as if the skill never left its start
