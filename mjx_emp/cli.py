@@ -251,6 +251,8 @@ def check_eval(exp: EvalExperiment) -> None:
     check_distinct_runs(exp.run_dirs, "eval")
     if exp.out:
         store.output_target(Path(exp.out), "out")  # a place it cannot write is refused before the evaluation runs
+    if exp.flip_figure:
+        store.output_target(Path(exp.flip_figure), "flip_figure")
 
 
 def evaluate(exp: EvalExperiment) -> dict:
@@ -267,6 +269,11 @@ def evaluate(exp: EvalExperiment) -> dict:
     store.write_atomically(out, json.dumps(report, indent=1), chosen=bool(exp.out))
     print(evaluation_text(report))
     print(f"wrote {out}")
+    if report.get("flip_table") is not None:
+        from mjx_emp.viz.flips import plot_flips
+
+        figure = Path(exp.flip_figure or out.with_name("flips.png"))
+        print(f"wrote {plot_flips(report['flip_table']['levels'], report['flip_table']['phase2'], figure)}")
     return report
 
 

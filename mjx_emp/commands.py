@@ -172,6 +172,9 @@ class EvalExperiment:
     beside it when more than one)."""
     out: str = ""
     """JSON output; empty means eval.json in the first run directory."""
+    flip_figure: str = ""
+    """PNG of where the skills flip the robot (goal-space algorithms); empty means flips.png
+    beside the JSON output."""
 
 
 @dataclasses.dataclass(frozen=True)

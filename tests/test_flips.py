@@ -166,3 +166,21 @@ class PitchlessEnv:
 
     def up_axis_z(self, obs):
         return 1.0 - 100.0 * np.maximum(np.asarray(obs)[..., 0], 0.0)
+
+
+def test_the_flip_figure_draws_each_tables_series():
+    from mjx_emp.viz.flips import flip_figure
+    from mjx_emp.viz.plots import axes_content
+
+    table = flips.episode_flips(PitchEnv(), planted_episodes(), (4,))
+    level = {**table, "level": 0, "by_goal_place": flips.goal_place(np.zeros((3, 1)) + [[0.1], [0.6], [0.9]],
+                                                                        np.array([True, True, False]))}
+    phase2 = {**table, "by_attempt": [{"attempt": 0, "episodes": 3, "cut_short": 1 / 3, "upside_down_after": 0.0}],
+              "by_subgoal_size": {"edges": [0.0, 0.5, None], "episodes": [3, 0], "flips": [2, 0], "share": [2 / 3, None]}}
+    hazard, tilt, spin, place, attempt, size = axes_content(flip_figure([flips.pooled([level])], phase2))
+    assert hazard.series["level 0"] == ([0.0, 1.0, 2.0, 3.0], [0.0, 0.0, 0.25, 1.0])
+    assert hazard.series["phase 2"] == hazard.series["level 0"]
+    np.testing.assert_allclose(tilt.series["level 0, flipped"][1], table["before_flip"]["flipped_tilt"][:4])
+    assert spin.series["level 0, upright"][1][:3] == [0.1, 0.1, 0.1]
+    assert place.series["level 0"] == ([0.125, 0.625, 0.875], [1.0, 1.0, 0.0])
+    assert attempt.series["phase 2"] == ([0.0], [1 / 3]) and size.series["phase 2"] == ([0.0], [2 / 3])

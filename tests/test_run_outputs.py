@@ -192,6 +192,9 @@ def test_eval_reports_every_level_and_phase2_and_aggregates_runs_as_seeds(traine
     assert table["episodes"] == 32 and table["flips"] == 0 and sum(table["by_goal_place"]["episodes"]) == 32
     assert "| 0 | 64 | 0.0% | 0.0% | 0.0% |" in result.stdout  # the two runs' tables pooled
     assert first["phase2"]["flip_table"]["episodes"] == 64 and "phase 2: 0.0% of 128 greedy episodes" in result.stdout
+    assert report["flip_table"]["levels"][0]["episodes"] == 64 and f"wrote {tmp_path / 'flips.png'}" in result.stdout
+    with Image.open(tmp_path / "flips.png") as image:
+        assert image.format == "PNG"
     phase2 = report["runs"][0]["figures"]["phase2"]
     assert phase2["episodes"] == 16 and phase2["eps"] == 0.6 and phase2["min_distance"] >= 0.0
     assert phase2["cut_short"] == 0.0 and report["phase2"]["cut_short"]["count"] == 2  # a point mass never resets

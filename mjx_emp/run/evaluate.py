@@ -232,7 +232,19 @@ def evaluate_runs(run_dirs: list[Path], seed: int = 0, episodes: int = 400, comm
     with_phase2 = [f["phase2"] for f in figures if f.get("phase2") is not None]
     if with_phase2:
         report["phase2"] = aggregate_phase2(with_phase2)
+    report["flip_table"] = pooled_flip_tables(rows)
     return report
+
+
+def pooled_flip_tables(rows: list[dict]) -> dict | None:
+    """The runs' flip tables pooled (:func:`mjx_emp.run.flips.pooled`): ``levels`` (phase 1, per
+    level) and ``phase2`` (None unless every run has one); None for flat skill learners."""
+    tables = [row["figures"].get("flip_table") for row in rows]
+    if not tables or not all(tables):
+        return None
+    phase2_tables = [(row["figures"].get("phase2") or {}).get("flip_table") for row in rows]
+    return {"levels": [pooled([t[level] for t in tables]) for level in range(len(tables[0]))],
+            "phase2": pooled(phase2_tables) if all(phase2_tables) else None}
 
 
 def _aggregate_goal_space_runs(runs: list[dict]) -> dict:
@@ -278,11 +290,8 @@ def evaluation_text(report: dict) -> str:
                      f"cells of goal space): {spread_text(report['coverage_cells'])} cells")
         if "posterior_std" in report:
             lines.append(f"posterior mean std: {spread_text(report['posterior_std'])}")
-    tables = [row["figures"].get("flip_table") for row in rows]
-    if tables and all(tables):
-        phase2_tables = [(row["figures"].get("phase2") or {}).get("flip_table") for row in rows]
-        lines += flip_text([pooled([t[level] for t in tables]) for level in range(len(tables[0]))],
-                           pooled(phase2_tables) if all(phase2_tables) else None)
+    if report.get("flip_table") is not None:
+        lines += flip_text(report["flip_table"]["levels"], report["flip_table"]["phase2"])
     p2 = report.get("phase2")
     if p2 is None:
         lines.append("phase 2: no run has a phase-2 directory (train one with `mjx-emp phase2 RUN_DIR`)")

@@ -24,7 +24,7 @@ from mjx_emp.run.store import (
 )
 
 
-def _pyplot():
+def pyplot():
     import matplotlib
 
     matplotlib.use("Agg")  # files only; no display needed
@@ -33,10 +33,10 @@ def _pyplot():
     return plt
 
 
-def _save(fig, path: Path) -> Path:
+def save_figure(fig, path: Path) -> Path:
     path = replace_file(Path(path), lambda temporary: fig.savefig(temporary, dpi=100))
     fig.clf()
-    _pyplot().close(fig)
+    pyplot().close(fig)
     return path
 
 
@@ -94,7 +94,7 @@ def colour_of(label: str, taken: list[str]) -> str:
     from matplotlib.colors import to_hex
 
     used = {to_hex(c) for c in taken}  # the cycle may hold RGB tuples where METHOD_COLOURS holds hex
-    spare = [to_hex(c) for c in _pyplot().rcParams["axes.prop_cycle"].by_key()["color"] if to_hex(c) not in used]
+    spare = [to_hex(c) for c in pyplot().rcParams["axes.prop_cycle"].by_key()["color"] if to_hex(c) not in used]
     return spare[0] if spare else "black"
 
 
@@ -127,7 +127,7 @@ def plot_seed_bands(groups: dict[str, list[list[dict]]], panels: list[tuple[str,
     """Learning curves of several methods against env steps: per method (``groups``: label ->
     each seed's metrics lines) the mean over seeds with a shaded band of one sample standard
     deviation. ``panels`` are (y label with its unit, read(metrics line) -> value)."""
-    plt = _pyplot()
+    plt = pyplot()
     if not groups or any(not runs or any(not m for m in runs) for runs in groups.values()):
         raise ValueError("no epochs to plot: a run has no metrics")
     fig, axes = plt.subplots(len(panels), 1, sharex=True, figsize=(7, 2.6 * len(panels) + 0.8), squeeze=False)
@@ -152,14 +152,14 @@ def plot_seed_bands(groups: dict[str, list[list[dict]]], panels: list[tuple[str,
     if title:
         axes[0, 0].set_title(title)
     fig.tight_layout()
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_goal_space_growth(metrics: list[dict], path: Path, unit: str = "", title: str = "") -> Path:
     """One run's goal-space volume at s0 (log scale) and greedy success per level against env
     steps (epochs where the lines have no env steps), saved as PNG: the figure of
     :func:`goal_space_growth_figure`."""
-    return _save(goal_space_growth_figure(metrics, unit, title), path)
+    return save_figure(goal_space_growth_figure(metrics, unit, title), path)
 
 
 def goal_space_growth_figure(metrics: list[dict], unit: str = "", title: str = ""):
@@ -191,7 +191,7 @@ def goal_space_growth_figure(metrics: list[dict], unit: str = "", title: str = "
 
 def plot_phase2_curves(metrics: list[dict], eps: float, path: Path) -> Path:
     """Phase 2's greedy mean minimum distance to goal (with eps marked) and success against env steps."""
-    plt = _pyplot()
+    plt = pyplot()
 
     if not metrics:
         raise ValueError("no epochs to plot: metrics is empty")
@@ -208,7 +208,7 @@ def plot_phase2_curves(metrics: list[dict], eps: float, path: Path) -> Path:
     success_ax.set_xlabel("phase-2 env steps")
     success_ax.set_ylim(0, 1.05)
     fig.tight_layout()
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 SKILL_DIAGNOSTIC = {"diayn": "posterior_std", "hidio": "posterior_std", "metra": "dual_lambda"}
@@ -218,7 +218,7 @@ SKILL_DIAGNOSTIC = {"diayn": "posterior_std", "hidio": "posterior_std", "metra":
 def plot_skill_learning(metrics: list[dict], path: Path) -> Path:
     """A flat skill learner's mean intrinsic reward, skill displacement and (DIAYN, HIDIO:
     posterior std; METRA: dual lambda) against env steps, saved as PNG."""
-    plt = _pyplot()
+    plt = pyplot()
 
     if not metrics:
         raise ValueError("no epochs to plot: metrics is empty")
@@ -232,7 +232,7 @@ def plot_skill_learning(metrics: list[dict], path: Path) -> Path:
     axes[0].set_title(f"{metrics[0]['algorithm']} phase 1")
     axes[-1].set_xlabel("env steps")
     fig.tight_layout()
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def draw_skills(ax, start: list[float], boxes: list[dict], trajectories: list, goals: list | None = None,
@@ -274,7 +274,7 @@ def draw_skills(ax, start: list[float], boxes: list[dict], trajectories: list, g
 def plot_skill_panels(start: list[float], panels: list[dict], path: Path, title: str = "") -> Path:
     """Panels side by side on shared axes (e.g. epoch 0 and the newest epoch), each drawn by
     :func:`draw_skills` from its ``boxes``, ``trajectories``, ``goals`` and ``title``."""
-    plt = _pyplot()
+    plt = pyplot()
     fig, axes = plt.subplots(1, len(panels), sharex=True, sharey=True, figsize=(6 * len(panels), 6), squeeze=False)
     for ax, panel in zip(axes[0], panels):
         draw_skills(ax, start, panel.get("boxes", []), panel["trajectories"], panel.get("goals"))
@@ -283,7 +283,7 @@ def plot_skill_panels(start: list[float], panels: list[dict], path: Path, title:
     if title:
         fig.suptitle(title)
     fig.tight_layout()
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_goal_space_boxes(start: list[float], boxes: list[dict], trajectories: list, path: Path,
