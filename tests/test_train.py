@@ -523,6 +523,22 @@ def test_a_flip_cost_keeps_the_rows_a_reset_cut_and_scores_them_as_an_absorbing_
     assert float(walked.discount[0]) == 0.0
 
 
+def test_a_flip_cost_scores_a_half_cheetah_left_on_its_back_as_an_absorbing_failure():
+    """The Half Cheetah is never reset: with ``flip_cost`` an action that leaves its torso upside
+    down is scored (r - cost) / (1 - gamma) with nothing bootstrapped; upright rows, and every
+    row without the cost, keep the paper's target."""
+    env, gamma, cost = make_env("half_cheetah_field"), 0.9, 2.0
+    start = env.observe(env.reset_to(jax.random.key(0), jnp.array([0.0])))
+    obs = jnp.stack([start, start.at[env.torso_pitch].set(np.pi)])  # upright, on its back
+    rows = GoalTransition(obs=jnp.stack([start, start]), goal=jnp.full((2, 1), 3.0),
+                          action=jnp.zeros((2, env.action_size)), next_obs=obs, reached=jnp.zeros(2, bool))
+    plain = one_step_backup(rows, env, 1.0, gamma)
+    paid = one_step_backup(rows, env, 1.0, gamma, flip_cost=cost)
+    np.testing.assert_allclose(paid.reward, [plain.reward[0], (plain.reward[1] - cost) / (1 - gamma)], rtol=1e-6)
+    np.testing.assert_allclose(paid.discount, [gamma, 0.0])
+    np.testing.assert_allclose(plain.discount, [gamma, gamma])
+
+
 def test_tilt_cost_lowers_level_zero_rewards_by_the_torso_tilt():
     """One- and n-step targets pay ``tilt_cost`` times 1 - z of the torso's up axis at each
     next state; at 0 they are the paper's reward, and an upright torso pays nothing."""

@@ -72,12 +72,23 @@ def step_reward(goal: jax.Array, next_obs: jax.Array, env: Env, sigma: float, ti
 def one_step_backup(batch: GoalTransition, env: Env, sigma: float, gamma: float, tilt_cost: float = 0.0,
                     flip_cost: float = 0.0) -> Backup:
     """The paper's one-step target: r = log N(goal; h(s'), sigma) (less a tilt cost, see
-    :func:`step_reward`), discount gamma until reached; rows a reset ended, in a replay that
-    keeps them, are scored by :func:`cut_backup` (with ``flip_cost``)."""
+    :func:`step_reward`), discount gamma until reached; rows a flip ended (:func:`flipped`)
+    are scored by :func:`cut_backup` (with ``flip_cost``)."""
     reward = step_reward(batch.goal, batch.next_obs, env, sigma, tilt_cost)
     backup = Backup(reward=reward, discount=gce.goal_conditioned_discount(batch.reached, gamma),
                     next_obs=batch.next_obs)
-    return backup if batch.cut is None else cut_backup(backup, batch.cut, gamma, flip_cost)
+    ended = flipped(batch.cut, batch.next_obs, env, flip_cost)
+    return backup if ended is None else cut_backup(backup, ended, gamma, flip_cost)
+
+
+def flipped(cut: jax.Array | None, next_obs: jax.Array, env: Env, flip_cost: float) -> jax.Array | None:
+    """The rows a flip ended, for :func:`cut_backup`: those a reset cut short (a flipped Ant, in
+    a replay that keeps them), and with a ``flip_cost`` also those that left the torso upside
+    down (a Half Cheetah on its back, which is never reset). None: no row can be one."""
+    if flip_cost == 0.0:
+        return cut
+    down = env.up_axis_z(next_obs) < 0.0
+    return down if cut is None else cut | down
 
 
 def cut_backup(backup: Backup, cut: jax.Array, gamma: float, flip_cost: float = 0.0) -> Backup:
@@ -106,8 +117,9 @@ def n_step_backup(rows: GoalTransition, slots: jax.Array, batch: GoalTransition,
     reached = reached.at[0].set(batch.reached)
     step = Backup(reward=step_reward(batch.goal, next_obs, env, sigma, tilt_cost),
                   discount=gce.goal_conditioned_discount(reached, gamma), next_obs=next_obs)
-    if rows.cut is not None:  # a reset ends the walk at the row it cut (the episode's last)
-        step = cut_backup(step, rows.cut[walk], gamma, flip_cost)
+    ended = flipped(None if rows.cut is None else rows.cut[walk], next_obs, env, flip_cost)
+    if ended is not None:  # a flip ends the walk at its row (for a reset, the episode's last)
+        step = cut_backup(step, ended, gamma, flip_cost)
     total, discount, boot = jnp.zeros_like(step.reward[0]), jnp.ones_like(step.reward[0]), batch.next_obs
     going = jnp.ones_like(exists[0])
     for j in range(steps):

@@ -146,7 +146,9 @@ class HEConfig:
     """A flip as an absorbing failure the goal-conditioned levels learn: with a cost > 0 every
     level keeps the actions a reset (a flipped Ant) cut short, as terminal rows worth
     (r - flip_cost) / (1 - gamma), r being the reward at the last state before the reset: the
-    robot stays there and pays the cost every step after (``learners.ddpg.cut_backup``). In
+    robot stays there and pays the cost every step after (``learners.ddpg.cut_backup``). An
+    action that leaves the torso upside down without a reset (a Half Cheetah on its back) is
+    scored the same way, at the state it reached. In
     units of the reward, log N(goal; h(s'), sigma_gc): a cost of c is the reward lost by
     ending sqrt(2 c) sigma_gc from the goal instead of on it. 0 drops those rows (the paper's setting;
     with ``learn_from_resets`` they are kept at no cost). With ``learn_from_resets`` the goal
