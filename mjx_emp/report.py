@@ -82,6 +82,10 @@ METRICS: dict[str, Metric] = {m.name: m for m in (
     _metric("coverage_cells", ("figures", "coverage_cells"), "coverage", "cells"),
     _metric("posterior_std", ("figures", "posterior_std"), "skill posterior std", ""),
     _metric("flips", ("figures", "flips"), "flips per episode", "", True),
+    _metric("top_flip_share", ("figures", "flip_table", "-1", "flip_share"),
+            "top-level greedy episodes that flip the robot (flip table)", "fraction", True),
+    _metric("phase2_flip_share", ("figures", "phase2", "flip_table", "flip_share"),
+            "phase-2 greedy episodes that flip the robot (flip table)", "fraction", True),
     _metric("env_steps", ("figures", "env_steps"), "env steps", ""),
     _metric("top_success_training", ("figures", "top_success_training"),
             "top-level success in training (mean of the last epochs)", "fraction"),
@@ -108,12 +112,16 @@ def metric_named(name: str | Metric) -> Metric:
 
 
 def lookup(row: dict, path: Sequence[str]) -> Any:
-    """The value at ``path`` in a nested row, or None where any step is missing."""
+    """The value at ``path`` in a nested row (a step into a list is its index, -1 the last),
+    or None where any step is missing."""
     value: Any = row
     for key in path:
-        if not isinstance(value, dict):
+        if isinstance(value, list) and key.lstrip("-").isdigit() and -len(value) <= int(key) < len(value):
+            value = value[int(key)]
+        elif isinstance(value, dict):
+            value = value.get(key)
+        else:
             return None
-        value = value.get(key)
     return value
 
 

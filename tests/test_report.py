@@ -61,6 +61,15 @@ def test_metric_values_skip_rows_without_the_metric():
         metric_values(rows, "speed")
 
 
+def test_a_metric_path_steps_into_lists_by_index():
+    rows = [{"figures": {"flip_table": [{"flip_share": 0.5}, {"flip_share": 0.25}],
+                         "phase2": {"flip_table": {"flip_share": 0.125}}}}, {"figures": {"flip_table": []}}]
+    assert metric_values(rows, "top_flip_share") == [0.25]  # the last level's; an empty list has none
+    assert metric_values(rows, "figures.flip_table.0.flip_share") == [0.5]
+    assert metric_values(rows, "phase2_flip_share") == [0.125]
+    assert metric_values(rows, "figures.flip_table.2.flip_share") == []
+
+
 def test_smaller_distances_beat_larger_ones_for_a_lower_is_better_metric():
     near, far = [0.1, 0.2, 0.3], [0.5, 0.6, 0.7]
     assert probability_of_improvement(near, far, lower_is_better=True, reps=REPS) == (1.0, 1.0, 1.0)
