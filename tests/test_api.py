@@ -50,6 +50,26 @@ def test_the_package_exports_the_api_without_loading_jax():
         mjx_emp.nothing  # noqa: B018
 
 
+def test_the_cli_imports_helps_and_lists_without_loading_jax():
+    """`import mjx_emp.cli`, `--help` (the CLI's and a preset's) and `presets` load none of JAX,
+    MuJoCo, matplotlib, orbax, flax or optax: they answer at once."""
+    code = """
+import sys
+import mjx_emp.cli as cli
+for argv in (["--help"], ["train", "ant-field-k1-cpu", "--help"], ["presets"]):
+    sys.argv = ["mjx-emp", *argv]
+    try:
+        cli.main()
+    except SystemExit as stop:
+        assert stop.code in (0, None), (argv, stop.code)
+heavy = [name for name in ("jax", "mujoco", "matplotlib", "orbax", "flax", "optax") if name in sys.modules]
+assert not heavy, heavy
+"""
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "usage: mjx-emp" in done.stdout and "ant-field-k1-cpu" in done.stdout
+
+
 def test_every_algorithm_reports_in_one_schema():
     he_line = {"epoch": 2, "env_steps": 10.0, "seconds": 1.0, "flip_resets": 0,
                "levels": [{"level": 0, "success": 0.5}, {"level": 1, "success": 0.25}]}
