@@ -72,6 +72,14 @@ def test_the_table_finds_each_planted_flip_where_and_how_it_happened():
     assert warned["threshold"] == pytest.approx(0.1) and warned["warned"] == 0.5 and warned["median_lead"] == 3.0
 
 
+def test_an_episode_begun_on_its_back_has_not_flipped():
+    episodes = planted_episodes()
+    obs = np.asarray(episodes.levels[0].obs).copy()
+    obs[:, 2, 1] = np.pi  # environment 2 starts on its back and stays there, as a Half Cheetah may
+    rows = episodes.levels[0].replace(obs=obs, next_obs=np.roll(obs, -1, axis=0))
+    assert flips.flip_steps(PitchEnv(), dataclasses.replace(episodes, levels=(rows,))).tolist() == [3, 2, -1]
+
+
 def test_goal_places_and_subgoal_sizes_bin_the_episodes_that_flipped():
     place = flips.goal_place(np.array([[0.1, -0.2], [0.9, 0.0], [-0.6, 0.3], [0.95, 0.99]]),
                              np.array([False, True, False, True]))
@@ -113,7 +121,8 @@ def test_phase1_and_phase2_tables_of_a_trained_agent_find_the_planted_flip(plant
                                             jax.random.fold_in(jax.random.fold_in(jax.random.key(0), level), i), 16)
                   for i, starts in enumerate(("initial", "chained"))]
         low = flips.joined(rolled).levels[0]
-        past = (np.asarray(low.next_obs)[..., 0] > 0.0) & flips.in_first_episode(low, flips.joined(rolled).first_end)
+        turned = (np.asarray(low.obs)[..., 0] <= 0.0) & (np.asarray(low.next_obs)[..., 0] > 0.0)  # upright to "down"
+        past = turned & flips.in_first_episode(low, flips.joined(rolled).first_end)
         assert table["flips"] == int(past.any(axis=0).sum()) > 0
         assert sum(table["by_index"][0]["flips"]) == table["flips"]
         assert sum(table["by_goal_place"]["episodes"]) == 32
@@ -175,7 +184,8 @@ def test_the_flip_figure_draws_each_tables_series():
     table = flips.episode_flips(PitchEnv(), planted_episodes(), (4,))
     level = {**table, "level": 0, "by_goal_place": flips.goal_place(np.zeros((3, 1)) + [[0.1], [0.6], [0.9]],
                                                                         np.array([True, True, False]))}
-    phase2 = {**table, "by_attempt": [{"attempt": 0, "episodes": 3, "cut_short": 1 / 3, "upside_down_after": 0.0}],
+    phase2 = {**table, "by_attempt": [{"attempt": 0, "episodes": 3, "cut_short": 1 / 3, "upside_down_after": 0.0,
+                                                  "flipped": 1 / 3}],
               "by_subgoal_size": {"edges": [0.0, 0.5, None], "episodes": [3, 0], "flips": [2, 0], "share": [2 / 3, None]}}
     hazard, tilt, spin, place, attempt, size = axes_content(flip_figure([flips.pooled([level])], phase2))
     assert hazard.series["level 0"] == ([0.0, 1.0, 2.0, 3.0], [0.0, 0.0, 0.25, 1.0])

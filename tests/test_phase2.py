@@ -365,6 +365,7 @@ def test_attempt_rows_follow_each_first_episode_attempt_by_attempt():
     assert [r["cut_short"] for r in rows] == [0.5, 0.0]
     assert [r["upside_down_before"] for r in rows] == [0.0, 0.0]
     assert [r["upside_down_after"] for r in rows] == [0.0, 0.5]
+    assert [r["flipped"] for r in rows] == [0.5, 0.5]  # env 1: cut short, then turned onto its back
 
 
 def test_attempts_of_the_aimed_policy_start_with_every_episode(tiny_phase2):

@@ -128,6 +128,8 @@ def n_step_backup(rows: GoalTransition, slots: jax.Array, batch: GoalTransition,
         boot = jnp.where(take[:, None], next_obs[j], boot)
         discount = jnp.where(take, discount * step.discount[j], discount)
         going = take & ~reached[j]
+        if ended is not None:  # nothing after a flip counts, nor is bootstrapped from
+            going = going & ~ended[j]
     return Backup(reward=total, discount=discount, next_obs=boot)
 
 

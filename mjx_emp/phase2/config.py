@@ -78,7 +78,8 @@ class Phase2Config:
     """A flipped attempt as an absorbing failure: with a cost > 0 the attempts a reset ended
     are kept (as with ``learn_from_resets``) and worth (r - flip_cost) / (1 - gamma), the robot
     paying the cost every step after (``learners.ddpg.cut_backup``), so the policy learns to
-    ask for subgoals whose skills keep it on its feet. In units of the reward,
+    ask for subgoals whose skills keep it on its feet. An attempt that leaves the torso upside
+    down with no reset (a Half Cheetah on its back) is scored the same way. In units of the reward,
     log N(goal; h(s'), sigma). 0: a flip costs only the reach it lost."""
     reflex_tilt: float = 0.0
     """A reflex (0: none): a skill hands control back to the policy on top, ending its attempt

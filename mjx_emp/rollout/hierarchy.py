@@ -92,9 +92,9 @@ class Hierarchy:
     reflex_tilt: float = 0.0
     """A reflex (0: none): every level below the root hands control back (its action ends,
     neither reached nor reset) at the first step after which the torso's tilt, 1 - z of its up
-    axis, exceeds this, having been at most this when the root issued its current action; the
-    root then chooses again from where the robot is. Root-level actions and episodes are not
-    cut short by it."""
+    axis, exceeds this, having been at most this when the root issued its current action; that
+    action of the root ends with them (it counts as one of the root's n) and the root chooses
+    again from where the robot is. The root's episode goes on."""
 
     def __post_init__(self):
         if not self.policies:

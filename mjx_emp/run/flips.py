@@ -63,7 +63,7 @@ class FirstEpisodes:
 def roll_first_episodes(plan: RolloutPlan, key: jax.Array, envs: int) -> FirstEpisodes:
     """``envs`` greedy episodes of ``plan``, rolled out long enough for every environment to
     finish its first (every level of the root's episode to its last action)."""
-    steps = math.prod(plan.hierarchy.n[: plan.root + 1]) + 1
+    steps = math.prod(plan.hierarchy.actions_per_episode(i) for i in range(plan.root + 1)) + 1
     begin = jit_init_rollout(plan.hierarchy, plan.params, plan.start, plan.start_params, key, envs, plan.root)
     _, transitions, episodes, _ = jit_rollout(plan.hierarchy, plan.params, plan.start, plan.start_params, begin,
                                               steps)
@@ -94,9 +94,12 @@ def tilt(env, obs) -> np.ndarray:
 
 def flip_steps(env, episodes: FirstEpisodes) -> np.ndarray:
     """[B]: the primitive step at which each first episode flipped, -1 where it did not: the
-    first step in it that a reset cut short or that left the torso upside down."""
+    first step in it that a reset cut short (for the Ant a flip; broken physics, as rare as it
+    is, counts too) or that turned the torso from upright to upside down (an episode begun on
+    its back, as a Half Cheetah's chained start may be, has not flipped by staying there)."""
     low = episodes.levels[0]
-    down = np.asarray(low.cut) | (np.asarray(low.valid) & (tilt(env, low.next_obs) > 1.0))
+    turned = (tilt(env, low.obs) <= 1.0) & (tilt(env, low.next_obs) > 1.0)
+    down = np.asarray(low.cut) | (np.asarray(low.valid) & turned)
     down &= in_first_episode(low, episodes.first_end)
     return np.where(down.any(axis=0), down.argmax(axis=0), -1)
 
@@ -258,7 +261,8 @@ def attempt_rows(env, top: Transition, first_end: np.ndarray, attempts: int) -> 
     arrays) up to each environment's ``first_end`` step: how many episodes made an i-th attempt,
     their mean progress toward the task goal (distance before less distance after, in goal-space
     units), the distance after, and the fractions that began and ended with the torso upside down
-    (up axis below the horizon) or that a reset cut short."""
+    (up axis below the horizon), that a reset cut short, and that flipped the robot (``flipped``:
+    cut short, or begun upright and ended upside down)."""
     ended = np.asarray(top.valid | top.cut) & in_first_episode(top, first_end)
     index = np.cumsum(ended, axis=0) - 1  # which attempt of its episode each ending row closes
     goal = np.asarray(top.goal)
@@ -274,7 +278,8 @@ def attempt_rows(env, top: Transition, first_end: np.ndarray, attempts: int) -> 
                      "distance_after": float(after[at].mean()),
                      "upside_down_before": float(down_before[at].mean()),
                      "upside_down_after": float(down_after[at].mean()),
-                     "cut_short": float(np.asarray(top.cut)[at].mean())})
+                     "cut_short": float(np.asarray(top.cut)[at].mean()),
+                     "flipped": float((np.asarray(top.cut) | (~down_before & down_after))[at].mean())})
     return rows
 
 
@@ -334,7 +339,7 @@ def _pooled_attempts(runs: list[list[dict]]) -> list[dict]:
         rows.append({"attempt": attempt, "episodes": count,
                      **{field: sum(a[field] * a["episodes"] for a in at) / count
                         for field in ("progress", "distance_after", "upside_down_before", "upside_down_after",
-                                      "cut_short")}})
+                                      "cut_short", "flipped")}})
     return rows
 
 
@@ -387,8 +392,7 @@ def flip_text(levels: list[dict], phase2: dict | None) -> list[str]:
             lines += [f"level {t['level']}'s episodes:", *_detail_lines(t)]
     if phase2 is not None:
         lines.append(f"phase 2: {_percent(phase2['flip_share'])} of {phase2['episodes']} greedy episodes flipped; "
-                     "by attempt: " + " ".join(f"{a['attempt']}:{_percent(max(a['cut_short'], a['upside_down_after']))}"
-                                               for a in phase2["by_attempt"]))
+                     "by attempt: " + " ".join(f"{a['attempt']}:{_percent(a['flipped'])}" for a in phase2["by_attempt"]))
         lines.append(f"  by subgoal size: {_bins_text(phase2['by_subgoal_size'], ' m')}")
         if phase2["flips"]:
             lines += _detail_lines(phase2)

@@ -40,7 +40,7 @@ def flip_figure(levels: list[dict], phase2: dict | None):
                        label=f"level {t['level']}")
     if phase2 is not None:
         rows = phase2["by_attempt"]
-        attempt.plot([r["attempt"] for r in rows], [max(r["cut_short"], r["upside_down_after"]) for r in rows], "o-",
+        attempt.plot([r["attempt"] for r in rows], [r["flipped"] for r in rows], "o-",
                      color=PHASE2_COLOUR, label="phase 2")
         bins = phase2["by_subgoal_size"]
         shown = [(i, s) for i, s in enumerate(bins["share"]) if s is not None]
