@@ -5,6 +5,7 @@ row again, the report prints IQM intervals, and bad specs are refused before any
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import signal
@@ -154,6 +155,23 @@ def test_a_row_with_skills_from_builds_its_phase_2_on_a_copy_of_the_other_rows_r
     assert run_sweep(str(spec), runs=str(swept / "runs"), results=str(results), report=lambda line: None) == []
 
 
+def test_rows_with_skills_from_wait_for_a_wave_after_their_source_rows_job():
+    from mjx_emp.run.sweep import Job, waves
+
+    spec = load_spec(SMOKE)
+    source, other = spec.rows
+    variant = dataclasses.replace(source, name="variant", skills_from=source.name)
+    later = dataclasses.replace(source, name="later", skills_from="variant")
+
+    def job(row):
+        return Job("s", row, "base", (), (), 1, "log", "cmd", None if row.skills_from is None else "base")
+
+    jobs = [job(source), job(other), job(variant), job(later)]
+    assert [[j.row.name for j in wave] for wave in waves(jobs)] == [["he-k1", "he-k2"], ["variant"], ["later"]]
+    # A source row with nothing left to do has no job: its variants run in the first wave.
+    assert [[j.row.name for j in wave] for wave in waves(jobs[1:3])] == [["he-k2", "variant"]]
+
+
 SPEC_HEAD = 'name = "bad"\n'
 GOOD_ROW = '[[row]]\nname = "a"\npreset = "point-mass-k1"\nseeds = [0]\n'
 
@@ -178,6 +196,8 @@ GOOD_ROW = '[[row]]\nname = "a"\npreset = "point-mass-k1"\nseeds = [0]\n'
      ["row 'b'", "preset", "takes its phase 1 from row 'a'"]),
     (GOOD_ROW + '[[row]]\nname = "b"\nskills_from = "a"\nseeds = [3]\nphase2 = "auto"\n', ["row 'b'", "seeds"]),
     (GOOD_ROW + '[[row]]\nname = "b"\nskills_from = "a"\n', ["row 'b'", "phase2", "needs a phase 2"]),
+    (GOOD_ROW + '[[row]]\nname = "b"\nskills_from = 1\nphase2 = "auto"\n', ["row 'b'", "skills_from", "name"]),
+    (GOOD_ROW + '[[row]]\nname = "b"\nskills_from = "a"\nseeds = [[0]]\nphase2 = "auto"\n', ["row 'b'", "seeds"]),
 ])
 def test_a_bad_spec_is_refused_naming_the_row_and_the_field(tmp_path, body, named):
     path = tmp_path / "bad.toml"

@@ -213,6 +213,8 @@ def check_row(raw: Any, index: int, default_episodes: int, earlier: dict[str, Ro
 def _skills_from_row(raw: dict, where: str, default_episodes: int, earlier: dict[str, Row]) -> Row:
     """A row that builds its phase 2 on an earlier row's phase-1 runs: that row's preset,
     overrides and budget, its seeds or some of them, and a phase 2 of its own."""
+    if not isinstance(raw["skills_from"], str):
+        raise _fail(where, f"skills_from: the name of a row before this one; got {raw['skills_from']!r}")
     source = earlier.get(raw["skills_from"])
     if source is None:
         raise _fail(where, f"skills_from: {raw['skills_from']!r} is not a row before this one; rows before it: "
@@ -222,7 +224,8 @@ def _skills_from_row(raw: dict, where: str, default_episodes: int, earlier: dict
         raise _fail(where, f"{taken[0]}: a row with skills_from takes its phase 1 from row {source.name!r}; "
                            f"leave out {', '.join(PHASE1_KEYS)}")
     seeds = raw.get("seeds", list(source.seeds))
-    if not isinstance(seeds, list) or not seeds or not set(seeds) <= set(source.seeds) or len(set(seeds)) != len(seeds):
+    if (not isinstance(seeds, list) or not seeds or not all(isinstance(seed, int) for seed in seeds)
+            or not set(seeds) <= set(source.seeds) or len(set(seeds)) != len(seeds)):
         raise _fail(where, f"seeds: some of row {source.name!r}'s seeds {list(source.seeds)}, each once; got {seeds!r}")
     phase2_preset, phase2_overrides, phase2 = _phase2_of_row(raw, source.config, where)
     if phase2 is None:
@@ -447,7 +450,13 @@ def copy_skills(job: Job, dirs: list[Path], configs: list[Any]) -> list[str]:
     done = []
     for seed, run_dir, cfg in zip(job.row.seeds, dirs, configs):
         if (run_dir / store.CONFIG_FILE).exists():
-            continue
+            if finished(run_dir, cfg):
+                continue
+            if (run_dir / store.PHASE2_SUBDIR).exists():
+                raise ConfigError(f"row {job.row.name!r}: skills_from: {run_dir} holds a copy of row "
+                                  f"{job.row.skills_from!r}'s seed {seed} that row has trained further since, and a "
+                                  f"phase 2 on the old copy; move {run_dir} away to copy the new skills")
+            shutil.rmtree(run_dir)  # an old copy with no phase 2 yet: copied again below
         source = Path(store.seed_run_dirs(job.skills_base, (seed,))[0])
         if not finished(source, cfg):
             raise ConfigError(f"row {job.row.name!r}: skills_from: row {job.row.skills_from!r} has not finished phase "
@@ -580,6 +589,20 @@ def plan(spec: Spec, runs_root: Path, results: Path, command: str) -> Plan:
     return Plan(jobs, current, sum(len(row.seeds) for row in spec.rows))
 
 
+def waves(jobs: list[Job]) -> list[list[Job]]:
+    """The jobs in the order they may run: a row whose skills come from another row's runs
+    (``skills_from``) waits for a wave after that row's job, where this call has one; the
+    rest run in the first wave."""
+    wave_of: dict[str, int] = {}
+    for job in jobs:  # a row's source comes before it in the spec, so its wave is known
+        source = job.row.skills_from
+        wave_of[job.row.name] = wave_of[source] + 1 if source in wave_of else 0
+    ordered: list[list[Job]] = [[] for _ in range(max(wave_of.values(), default=-1) + 1)]
+    for job in jobs:
+        ordered[wave_of[job.row.name]].append(job)
+    return ordered
+
+
 def _executor(kind: str, workers: int, folder: Path, slurm: dict[str, Any]):
     """The executor that runs jobs: local worker processes, or submitit (Slurm, or its local
     executor) writing its files under ``folder``."""
@@ -633,18 +656,20 @@ def sweep(spec_path: str, runs: str = "", results: str = "", workers: int = 1, e
     pool = _executor(executor, workers, runs_root / spec.name / "submitit", spec.slurm)
     done_runs = len(todo.current)
     try:
-        futures = {pool.submit(run_job, job): job for job in todo.jobs}
-        for job, rows in completed_jobs(futures, executor):
-            for row in rows:
-                append_row(results_path, row)
-            written += rows
-            done_runs += len(rows)
-            elapsed = time.monotonic() - started
-            left = todo.total - done_runs
-            per_run = elapsed / max(1, done_runs - len(todo.current))
-            eta = f"; about {_duration(per_run * left / workers)} left" if left else ""
-            report(f"[{done_runs}/{todo.total} runs] row {job.row.name}: {'; '.join(rows[0]['evaluation']['did']) or 'evaluated'}"
-                   f" ({_duration(elapsed)} so far{eta}); log {job.log}")
+        for wave in waves(todo.jobs):
+            futures = {pool.submit(run_job, job): job for job in wave}
+            for job, rows in completed_jobs(futures, executor):
+                for row in rows:
+                    append_row(results_path, row)
+                written += rows
+                done_runs += len(rows)
+                elapsed = time.monotonic() - started
+                left = todo.total - done_runs
+                per_run = elapsed / max(1, done_runs - len(todo.current))
+                eta = f"; about {_duration(per_run * left / workers)} left" if left else ""
+                did = "; ".join(rows[0]["evaluation"]["did"]) or "evaluated"
+                report(f"[{done_runs}/{todo.total} runs] row {job.row.name}: {did} ({_duration(elapsed)} so far{eta}); "
+                       f"log {job.log}")
     finally:
         if hasattr(pool, "shutdown"):
             pool.shutdown(wait=True, cancel_futures=True)
