@@ -125,8 +125,10 @@ def test_a_retired_names_command_parses_to_its_old_config(name):
 
 def test_every_retired_task_name_gives_back_its_old_task():
     for name, old in OLD_CATALOGUE["phase2"].items():
-        task = PHASE2_PRESETS[PHASE2_RETIRED[name].preset][2]
-        assert json.loads(json.dumps(dataclasses.asdict(task))) == old["config"], name
+        task = json.loads(json.dumps(dataclasses.asdict(PHASE2_PRESETS[PHASE2_RETIRED[name].preset][2])))
+        assert {field: task[field] for field in old["config"]} == old["config"], name
+        default = json.loads(json.dumps(dataclasses.asdict(type(PHASE2_PRESETS[PHASE2_RETIRED[name].preset][2])())))
+        assert all(task[field] == default[field] for field in set(task) - set(old["config"])), name  # added since
     assert not set(PHASE2_RETIRED) & set(PHASE2_PRESETS)
 
 
