@@ -92,14 +92,16 @@ def phase2_figures(trainer, epoch: int, state, key, episodes: int) -> dict:
     minimum distance to goal and success on at least ``episodes`` goals from the region; where
     the trainer offers them (``diagnostic_tops``), the same figures of the scripted policies on
     the same goals (:data:`mjx_emp.metrics.PHASE2_DIAGNOSTICS`); and the flip table of
-    :data:`FLIP_TABLE_PHASE2_ENVS` greedy episodes (:func:`mjx_emp.run.flips.phase2_flips`)."""
+    :data:`FLIP_TABLE_PHASE2_ENVS` greedy episodes (:func:`mjx_emp.run.flips.phase2_flips`; over
+    goal-space skills only)."""
     cfg = trainer.cfg
     figures = {"epoch": epoch, "n": cfg.n, "eps": cfg.eps, "region": list(cfg.region),
                "region_offset": list(cfg.region_offset), **trainer.evaluate(state, key, episodes)}
     for top in trainer.diagnostic_tops:  # the same goals (same key) under the scripted policies
         figures[top] = dataclasses.replace(trainer, top=top).evaluate(state, key, episodes)
-    figures["flip_table"] = phase2_flips(trainer, state, jax.random.fold_in(key, FLIP_TABLE_KEY),
-                                         FLIP_TABLE_PHASE2_ENVS)
+    if algorithm_of(trainer.phase1.cfg).skills == GOAL_SPACES:  # skills addressed by subgoals: followed step by step
+        figures["flip_table"] = phase2_flips(trainer, state, jax.random.fold_in(key, FLIP_TABLE_KEY),
+                                             FLIP_TABLE_PHASE2_ENVS)
     return figures
 
 
