@@ -155,21 +155,48 @@ def test_a_row_with_skills_from_builds_its_phase_2_on_a_copy_of_the_other_rows_r
     assert run_sweep(str(spec), runs=str(swept / "runs"), results=str(results), report=lambda line: None) == []
 
 
-def test_rows_with_skills_from_wait_for_a_wave_after_their_source_rows_job():
-    from mjx_emp.run.sweep import Job, waves
+def test_jobs_run_in_spec_order_and_a_skills_from_row_after_its_source():
+    """One worker: each job as the one before ends, a variant of a row's skills right after that
+    row (not after the rows between); two workers: two at a time, the variant waiting for its
+    source however long the other row takes."""
+    import concurrent.futures
+
+    from mjx_emp.run.sweep import Job, schedule
 
     spec = load_spec(SMOKE)
     source, other = spec.rows
     variant = dataclasses.replace(source, name="variant", skills_from=source.name)
-    later = dataclasses.replace(source, name="later", skills_from="variant")
+    jobs = [Job("s", row, "base", (), (), 1, "log", "cmd", None if row.skills_from is None else "base")
+            for row in (source, other, variant)]
 
-    def job(row):
-        return Job("s", row, "base", (), (), 1, "log", "cmd", None if row.skills_from is None else "base")
+    def run(limit, slow):
+        started, running_at_start = [], []
+        live: dict = {}
 
-    jobs = [job(source), job(other), job(variant), job(later)]
-    assert [[j.row.name for j in wave] for wave in waves(jobs)] == [["he-k1", "he-k2"], ["variant"], ["later"]]
-    # A source row with nothing left to do has no job: its variants run in the first wave.
-    assert [[j.row.name for j in wave] for wave in waves(jobs[1:3])] == [["he-k2", "variant"]]
+        def submit(job):
+            started.append(job.row.name)
+            running_at_start.append(sorted(j.row.name for j in live.values()))
+            future = concurrent.futures.Future()
+            live[future] = job
+            return future
+
+        def next_done(running):  # the jobs end in submission order, the slow one last
+            future = min(running, key=lambda f: (live[f].row.name == slow, list(live).index(f)))
+            future.set_result([])
+            del live[future]
+            return future
+
+        ended = [job.row.name for job, _ in schedule(jobs, limit, submit, next_done)]
+        return started, running_at_start, ended
+
+    assert run(1, slow="")[0] == ["he-k1", "he-k2", "variant"]
+    started, running_at_start, ended = run(2, slow="he-k1")
+    assert started == ["he-k1", "he-k2", "variant"] and ended == ["he-k2", "he-k1", "variant"]
+    assert running_at_start[2] == []  # the variant started once its source had ended
+    # A source row with nothing left to do has no job: its variant is ready at once.
+    assert [job.row.name for job, _ in schedule(jobs[2:], 1, lambda job: concurrent.futures.Future(),
+                                                  lambda running: [f.set_result([]) or f for f in running][0])] \
+        == ["variant"]
 
 
 SPEC_HEAD = 'name = "bad"\n'
@@ -232,11 +259,11 @@ def test_a_failed_job_is_one_error_naming_its_row_and_log():
     import concurrent.futures
 
     from mjx_emp.errors import JobFailed
-    from mjx_emp.run.sweep import Job, completed_jobs
+    from mjx_emp.run.sweep import Job, job_rows
 
     spec = load_spec(SMOKE)
     job = Job(spec.name, spec.rows[0], "r", ("r-s0", "r-s1"), (0, 0), 1, "runs/x/logs/he-k1.log", "mjx-emp sweep")
     failed = concurrent.futures.Future()
     failed.set_exception(FloatingPointError("a diverged critic"))
     with pytest.raises(JobFailed, match="row 'he-k1' failed .*a diverged critic.*runs/x/logs/he-k1.log"):
-        list(completed_jobs({failed: job}, "local"))
+        job_rows(job, failed)

@@ -39,6 +39,7 @@ path without a cluster.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import os
 import shlex
@@ -589,18 +590,27 @@ def plan(spec: Spec, runs_root: Path, results: Path, command: str) -> Plan:
     return Plan(jobs, current, sum(len(row.seeds) for row in spec.rows))
 
 
-def waves(jobs: list[Job]) -> list[list[Job]]:
-    """The jobs in the order they may run: a row whose skills come from another row's runs
-    (``skills_from``) waits for a wave after that row's job, where this call has one; the
-    rest run in the first wave."""
-    wave_of: dict[str, int] = {}
-    for job in jobs:  # a row's source comes before it in the spec, so its wave is known
-        source = job.row.skills_from
-        wave_of[job.row.name] = wave_of[source] + 1 if source in wave_of else 0
-    ordered: list[list[Job]] = [[] for _ in range(max(wave_of.values(), default=-1) + 1)]
-    for job in jobs:
-        ordered[wave_of[job.row.name]].append(job)
-    return ordered
+def schedule(jobs: list[Job], limit: int, submit: Callable[[Job], Any],
+             next_done: Callable[[dict], Any]) -> Iterator[tuple[Job, Any]]:
+    """Run ``jobs`` in the spec's order, at most ``limit`` at a time, and yield (job, its
+    finished future) as each ends. A row whose skills come from another row's runs
+    (``skills_from``) starts only once that row's job of this call has ended, and then before
+    the rows after it. ``submit(job)`` starts one; ``next_done(running)`` waits for one of the
+    running futures to end and returns it."""
+    waiting, running, ended = list(jobs), {}, set()
+    with_jobs = {job.row.name for job in jobs}
+    while waiting or running:
+        while waiting and len(running) < limit:
+            ready = next((job for job in waiting
+                          if job.row.skills_from not in with_jobs or job.row.skills_from in ended), None)
+            if ready is None:
+                break
+            waiting.remove(ready)
+            running[submit(ready)] = ready
+        future = next_done(running)
+        job = running.pop(future)
+        ended.add(job.row.name)
+        yield job, future
 
 
 def _executor(kind: str, workers: int, folder: Path, slurm: dict[str, Any]):
@@ -655,55 +665,52 @@ def sweep(spec_path: str, runs: str = "", results: str = "", workers: int = 1, e
     started = time.monotonic()
     pool = _executor(executor, workers, runs_root / spec.name / "submitit", spec.slurm)
     done_runs = len(todo.current)
+    limit = len(todo.jobs) if executor == "slurm" else workers  # Slurm queues them; local workers take `workers`
     try:
-        for wave in waves(todo.jobs):
-            futures = {pool.submit(run_job, job): job for job in wave}
-            for job, rows in completed_jobs(futures, executor):
-                for row in rows:
-                    append_row(results_path, row)
-                written += rows
-                done_runs += len(rows)
-                elapsed = time.monotonic() - started
-                left = todo.total - done_runs
-                per_run = elapsed / max(1, done_runs - len(todo.current))
-                eta = f"; about {_duration(per_run * left / workers)} left" if left else ""
-                did = "; ".join(rows[0]["evaluation"]["did"]) or "evaluated"
-                report(f"[{done_runs}/{todo.total} runs] row {job.row.name}: {did} ({_duration(elapsed)} so far{eta}); "
-                       f"log {job.log}")
+        for job, future in schedule(todo.jobs, limit, lambda job: pool.submit(run_job, job),
+                                    functools.partial(next_done, executor=executor)):
+            rows = job_rows(job, future)
+            for row in rows:
+                append_row(results_path, row)
+            written += rows
+            done_runs += len(rows)
+            elapsed = time.monotonic() - started
+            left = todo.total - done_runs
+            per_run = elapsed / max(1, done_runs - len(todo.current))
+            eta = f"; about {_duration(per_run * left / workers)} left" if left else ""
+            did = "; ".join(rows[0]["evaluation"]["did"]) or "evaluated"
+            report(f"[{done_runs}/{todo.total} runs] row {job.row.name}: {did} ({_duration(elapsed)} so far{eta}); "
+                   f"log {job.log}")
     finally:
         if hasattr(pool, "shutdown"):
             pool.shutdown(wait=True, cancel_futures=True)
     return written
 
 
-def completed_jobs(futures: dict, executor: str) -> Iterator[tuple[Job, list[dict]]]:
-    """(job, its rows) as jobs finish; a job that fails raises here, naming its row and log."""
+def next_done(running: dict, executor: str) -> Any:
+    """Wait for one of the ``running`` futures (concurrent.futures' or submitit's jobs) to end;
+    return it."""
     if executor == "local":
         import concurrent.futures
 
-        waiting = concurrent.futures.as_completed(futures)
-    else:
-        waiting = _submitit_completed(list(futures))
-    for future in waiting:
-        job = futures[future]
-        try:
-            rows = future.result()
-        except ConfigError as err:
-            raise ConfigError(f"{err} (log: {job.log})") from None
-        except Exception as err:  # a worker's failure: its row is named, its log holds the traceback
-            raise JobFailed(f"row {job.row.name!r} failed ({type(err).__name__}: {err}); see {job.log}; calling the "
-                            f"sweep again resumes") from err
-        yield job, rows
+        done, _ = concurrent.futures.wait(running, return_when=concurrent.futures.FIRST_COMPLETED)
+        return next(future for future in running if future in done)  # the first submitted of those done
+    while True:
+        finished = next((future for future in running if future.done()), None)
+        if finished is not None:
+            return finished
+        time.sleep(1.0)
 
 
-def _submitit_completed(pending: list) -> Iterator[Any]:
-    while pending:
-        for future in list(pending):
-            if future.done():
-                pending.remove(future)
-                yield future
-        if pending:
-            time.sleep(1.0)
+def job_rows(job: Job, future: Any) -> list[dict]:
+    """A finished job's rows; a job that failed raises here, naming its row and log."""
+    try:
+        return future.result()
+    except ConfigError as err:
+        raise ConfigError(f"{err} (log: {job.log})") from None
+    except Exception as err:  # a worker's failure: its row is named, its log holds the traceback
+        raise JobFailed(f"row {job.row.name!r} failed ({type(err).__name__}: {err}); see {job.log}; calling the "
+                        f"sweep again resumes") from err
 
 
 def _duration(seconds: float) -> str:
