@@ -174,11 +174,16 @@ def evaluation_row(run_dir: Path, seed: int = 0, episodes: int = 400, command: s
     overrides from the run's provenance), its figures (:func:`run_figures` with the evaluation
     key ``jax.random.key(seed)``, for phase 1 and phase 2 alike), its curves, and how it was made
     (the training's provenance and the evaluation's). ``spec`` and ``row`` name the sweep row it
-    belongs to (None for a run evaluated on its own)."""
+    belongs to (None for a run evaluated on its own). The programs compiled for it are
+    released at the end: no other run's agent can use them, and a process that evaluates
+    runs one after another would otherwise run out of memory mappings (vm.max_map_count)."""
     run_dir = Path(run_dir)
     cfg = store.read_run_config(run_dir, "run_dir")
     trained = store.read_run_record(run_dir)
-    figures = run_figures(run_dir, jax.random.key(seed), episodes, coverage_draws)
+    try:
+        figures = run_figures(run_dir, jax.random.key(seed), episodes, coverage_draws)
+    finally:
+        jax.clear_caches()
     lines = store.read_metrics(run_dir)
     return {
         "schema": ROW_SCHEMA, "spec": spec, "row": row, "seed": int(cfg.seed), "run_dir": str(run_dir),

@@ -473,6 +473,8 @@ def copy_skills(job: Job, dirs: list[Path], configs: list[Any]) -> list[str]:
 def phase2_row(job: Job) -> list[str]:
     """Phase 2 of every seed of the job's row (none without a phase-2 preset): trained, resumed
     or left alone when finished."""
+    import jax
+
     from mjx_emp.commands import Phase2Experiment, ResumeExperiment
     from mjx_emp.run import jobs
     from mjx_emp.run.provenance import run_record
@@ -497,6 +499,7 @@ def phase2_row(job: Job) -> list[str]:
                 continue
         jobs.train_phase2(Phase2Experiment(run_dir=str(run_dir), config=row.phase2),
                           record=run_record(row.phase2_preset, row.phase2_overrides, job.command))
+        jax.clear_caches()  # the next seed's phase 2 compiles its own
         done.append(f"trained phase 2 of seed {seed}")
     return done
 
@@ -506,8 +509,13 @@ def run_job(job: Job) -> list[dict]:
     Its output goes to the job's log file."""
     with _output_to(Path(job.log)):
         print(f"== {time.strftime('%Y-%m-%d %H:%M:%S')} row {job.row.name} of {job.spec}", flush=True)
-        done = train_row(job) + phase2_row(job)
+        import jax
+
         from mjx_emp.run.evaluate import evaluation_row
+
+        done = train_row(job)
+        jax.clear_caches()  # each step compiles its own programs; memory mappings are finite (vm.max_map_count)
+        done += phase2_row(job)
 
         rows = []
         for run_dir, eval_seed in zip(job.run_dirs, job.eval_seeds):
