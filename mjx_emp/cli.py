@@ -218,7 +218,7 @@ def report(exp: ReportExperiment) -> None:
     from mjx_emp.report import report_spec
 
     print(report_spec(exp.spec, exp.results, exp.metrics, exp.baseline, exp.figure, exp.curve, exp.into, exp.block,
-                      exp.reps))
+                      exp.reps, flip_table=exp.flip_table))
     if exp.into:
         print(f"wrote block {exp.block or Path(exp.spec).stem} of {exp.into}")
 

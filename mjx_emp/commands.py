@@ -263,6 +263,9 @@ class ReportExperiment:
     """The block's name; empty: the spec's name."""
     reps: int = 2000
     """Bootstrap resamples per interval."""
+    flip_table: str = ""
+    """A row name: instead of the table of metrics, that row's flip table pooled over its runs,
+    as `mjx-emp eval` prints it (goal-space algorithms' rows)."""
 
 
 EnvName = Literal[DOMAIN_NAMES]

@@ -584,6 +584,22 @@ def chosen_rows(rows: Sequence[dict], patterns: Sequence[str]) -> list[dict]:
     return [row for row in rows if any(fnmatchcase(str(row.get("row")), pattern) for pattern in patterns)]
 
 
+def row_flip_table(rows: Sequence[dict], name: str) -> str:
+    """Row ``name``'s flip tables pooled over its runs (:func:`mjx_emp.run.flips.pooled`), as
+    `mjx-emp eval` prints them; a row without one is a ConfigError naming the rows that have one."""
+    from mjx_emp.run.flips import flip_text, pooled
+
+    held = [row for row in rows if row["row"] == name and (row.get("figures") or {}).get("flip_table")]
+    if not held:
+        having = sorted({row["row"] for row in rows if (row.get("figures") or {}).get("flip_table")})
+        raise ConfigError(f"flip_table: row {name!r} has no flip table in these rows; rows with one: "
+                          f"{', '.join(having) or 'none'}")
+    tables = [row["figures"]["flip_table"] for row in held]
+    phase2 = [((row["figures"].get("phase2") or {}).get("flip_table")) for row in held]
+    levels = [pooled([table[level] for table in tables]) for level in range(len(tables[0]))]
+    return "\n".join(flip_text(levels, pooled(phase2) if all(phase2) else None))
+
+
 def producing_command(spec: Any) -> str:
     """The command that makes a spec's rows: its sweep, or its benchmark script."""
     return spec.command if isinstance(spec, BenchmarkSpec) else f"mjx-emp sweep {spec.path}"
@@ -596,12 +612,13 @@ def reproduce_line(spec: Any, options: str = "") -> str:
 
 def report_spec(spec_path: str, results: str = "", metrics: Sequence[str] = (), baseline: str = "",
                 figure: str = "", curve: str = "top_volume", into: str = "", block: str = "",
-                reps: int = DEFAULT_REPS, write: bool = True) -> str:
+                reps: int = DEFAULT_REPS, write: bool = True, flip_table: str = "") -> str:
     """A spec's report as Markdown: its stored rows' table (:func:`markdown_table`) and the command
     that reproduces it; with ``figure``, a seed-band PNG of ``curve`` too (linked under the
     table); with ``into``, the text replaces block ``block`` (default: the spec's name) of that
     Markdown file (``write`` False: the text only, as a check of a committed block makes it). The
-    spec's ``[report]`` table may name ``metrics`` and ``baseline``."""
+    spec's ``[report]`` table may name ``metrics`` and ``baseline``. With ``flip_table`` (a row
+    name) the text is that row's flip table pooled over its runs instead of the table."""
     from mjx_emp.run.rows import RESULTS_DIR
     from mjx_emp.run.store import output_target
 
@@ -620,8 +637,9 @@ def report_spec(spec_path: str, results: str = "", metrics: Sequence[str] = (), 
     baseline_asked, reps_asked = baseline, reps
     baseline = baseline or spec.report.get("baseline", "")
     reps = spec.report.get("reps", reps) if reps == DEFAULT_REPS else reps
-    table = markdown_table(rows, chosen, baseline=baseline or None, reps=reps)
-    asked_options = (("metrics", " ".join(metrics)), ("baseline", baseline_asked),
+    table = row_flip_table(rows, flip_table) if flip_table else markdown_table(rows, chosen, baseline=baseline or None,
+                                                                               reps=reps)
+    asked_options = (("flip-table", flip_table), ("metrics", " ".join(metrics)), ("baseline", baseline_asked),
                      ("reps", str(reps_asked) if reps_asked != DEFAULT_REPS else ""), ("figure", figure),
                      ("curve", curve if figure else ""), ("into", into), ("block", block))
     options = "".join(f" --{flag} {value}" for flag, value in asked_options if value)

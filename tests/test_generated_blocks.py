@@ -37,7 +37,7 @@ def test_a_generated_block_is_what_its_command_makes_of_the_committed_rows(page,
     monkeypatch.chdir(ROOT)  # specs, rows and pages are named relative to the repository
     figure = str(tmp_path / "figure.png") if exp.figure else ""
     text = report_spec(exp.spec, exp.results, exp.metrics, exp.baseline, figure, exp.curve, exp.into, exp.block,
-                       exp.reps, write=False)
+                       exp.reps, write=False, flip_table=exp.flip_table)
     regenerated = text.replace(f" --figure {figure}", f" --figure {exp.figure}")
     assert without_figure_links(block.rstrip("\n")) == without_figure_links(regenerated), (
         f"{page.name}: block {name} differs from what `mjx-emp report {command['args']}` makes of the rows; "

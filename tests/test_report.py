@@ -184,3 +184,23 @@ def test_read_rows_names_the_file_and_line_of_a_bad_line_before_the_last(tmp_pat
     path = write_lines(tmp_path / "smoke.jsonl", [make_row("he-k1", 0, 0.5)], tail="{oops\n" + json.dumps({}) + "\n")
     with pytest.raises(ConfigError, match=r"rows: .*smoke\.jsonl line 2 is not JSON"):
         read_rows(path)
+
+
+def test_a_rows_flip_table_is_its_runs_tables_pooled_and_a_row_without_one_is_named():
+    from mjx_emp.report import row_flip_table
+    from mjx_emp.run.flips import flip_text, pooled
+
+    level = {"level": 0, "episodes": 10, "flips": 1, "flip_share": 0.1,
+             "by_index": [{"level": 0, "index": [0, 1], "attempts": [10, 9], "flips": [0, 1], "hazard": [0.0, 1 / 9]}],
+             "before_flip": {"steps_before": [0, 1], "flipped_tilt": [0.9, 0.5], "upright_tilt": [0.0, 0.0],
+                             "flipped_angular_speed": [2.0, 1.0], "upright_angular_speed": [1.0, 1.0],
+                             "tilt_warning": {"threshold": 0.3, "warned": 1.0, "median_lead": 1.0},
+                             "angular_speed_warning": {"threshold": 3.0, "warned": 0.0, "median_lead": None}},
+             "by_start": {"initial": 0.0, "chained": 0.2},
+             "by_goal_place": {"edges": [0.0, 0.5, 1.0], "episodes": [5, 5], "flips": [0, 1], "share": [0.0, 0.2]}}
+    rows = [{"row": "he-k1", "seed": s, "figures": {"flip_table": [level], "phase2": None}} for s in (0, 1)]
+    text = row_flip_table(rows + [{"row": "metra", "seed": 0, "figures": {"flip_table": None}}], "he-k1")
+    assert text == "\n".join(flip_text([pooled([level, level])], None))
+    assert "| 0 | 20 | 10.0% | 0.0% | 20.0% |" in text
+    with pytest.raises(ConfigError, match="flip_table: row 'metra' has no flip table .*rows with one: he-k1"):
+        row_flip_table(rows + [{"row": "metra", "seed": 0, "figures": {"flip_table": None}}], "metra")
