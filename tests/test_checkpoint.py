@@ -10,20 +10,20 @@ import signal
 import subprocess
 import time
 from pathlib import Path
-from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from flax import struct
 from tiny import SMALL, TINY, mjx_emp, run_cli, tiny_after_two_epochs, tiny_trainer
 
 from mjx_emp import cli
 from mjx_emp.algos.he.agent import HEAgent
 from mjx_emp.algos.registry import config_from_json
 from mjx_emp.errors import CheckpointError, CheckpointWriteError, TrainingDiverged
-from mjx_emp.run.checkpoint import Checkpoints, config_mismatches, layout_mismatch, layout_of, pack, unpack
+from mjx_emp.run import checkpoint
+from mjx_emp.run.checkpoint import Checkpoints, config_mismatches
+from mjx_emp.run.packing import layout_mismatch, layout_of, pack, unpack
 from mjx_emp.run.jobs import load_run
 from mjx_emp.run.loop import train_epochs
 from mjx_emp.run.store import keep_metrics_through, read_metrics, write_config
@@ -87,55 +87,59 @@ def test_restore_gives_back_the_saved_state_bit_for_bit(saved_run):
         assert_bitwise_equal(checkpoints.restore(1, states[1], TINY), states[1])
 
 
-def test_a_checkpoint_from_before_exact_step_counters_restores_with_its_count(saved_run, tmp_path):
+def without_format_number(step_dir: Path) -> None:
+    """Rewrite a checkpoint's digests item as checkpoints were written before formats were numbered."""
+    path = step_dir / "digests" / "metadata"
+    digests = json.loads(path.read_text())
+    assert digests.pop("format") == checkpoint.FORMAT
+    path.write_text(json.dumps(digests))
+
+
+def test_a_checkpoint_records_its_format_and_one_written_before_formats_with_todays_layout_restores(saved_run,
+                                                                                                    tmp_path):
     _, states = saved_run
     state = states[2]
-    old_form = state.replace(env_steps=jnp.float32(state.env_steps.value()))  # how they were saved
-    assert {"path": ".env_steps", "shape": [], "dtype": "float32", "key": False} in layout_of(old_form)
     with Checkpoints(tmp_path, keep=1) as checkpoints:
-        checkpoints.save(2, old_form, TINY)
+        checkpoints.save(2, state, TINY)
         checkpoints.wait()
+        assert json.loads((checkpoints.step_dir(2) / "digests" / "metadata").read_text())["format"] == checkpoint.FORMAT
+        without_format_number(checkpoints.step_dir(2))
         assert_bitwise_equal(checkpoints.restore(2, jax.eval_shape(lambda: state), TINY), state)
 
 
-@struct.dataclass
-class TrainStateBeforeTheRestructure:
-    """Phase 1's state as checkpoints written before the restructure hold it: the same arrays
-    under the old field names, and a float32 step count."""
-
-    gc: tuple
-    gs: tuple
-    replay: tuple
-    gs_replay: tuple
-    starts: tuple
-    chain: Any
-    key: jax.Array
-    epoch: jax.Array
-    env_steps: jax.Array
-
-
-def test_a_checkpoint_from_before_the_restructure_restores_bit_for_bit(saved_run, tmp_path):
+def test_an_earlier_layout_is_refused_naming_its_format_and_the_first_array_that_differs(saved_run, tmp_path):
     _, states = saved_run
     state = states[2]
-    old = TrainStateBeforeTheRestructure(
-        gc=state.policies, gs=state.goal_spaces, replay=state.replay, gs_replay=state.goal_space_replay,
-        starts=state.starts, chain=state.chain, key=state.key, epoch=state.epoch,
-        env_steps=jnp.float32(state.env_steps.value()),
-    )
-    assert layout_of(old)[0]["path"].startswith(".gc[0]")
+    float_count = state.replace(env_steps=jnp.float32(state.env_steps.value()))  # how early checkpoints held it
     with Checkpoints(tmp_path, keep=1) as checkpoints:
-        checkpoints.save(2, old, TINY)
+        checkpoints.save(2, float_count, TINY)
         checkpoints.wait()
-        assert_bitwise_equal(checkpoints.restore(2, jax.eval_shape(lambda: state), TINY), state)
+        without_format_number(checkpoints.step_dir(2))
+        with pytest.raises(CheckpointError, match=r"\(checkpoint format 0\) does not fit this config's train state in "
+                                                  r"format 1: array \.env_steps\.hi is \(missing\)"):
+            checkpoints.restore(2, jax.eval_shape(lambda: state), TINY)
 
 
-def test_a_layout_no_upgrade_explains_is_refused_naming_the_array(saved_run, tmp_path):
+def test_a_checkpoint_of_a_newer_format_is_refused_naming_both_formats(saved_run, tmp_path, monkeypatch):
+    _, states = saved_run
+    with Checkpoints(tmp_path, keep=1) as checkpoints:
+        monkeypatch.setattr(checkpoint, "FORMAT", checkpoint.FORMAT + 1)
+        checkpoints.save(2, states[2], TINY)
+        checkpoints.wait()
+        monkeypatch.undo()
+        with pytest.raises(CheckpointError, match=r"checkpoint format 2 was written by a newer mjx-emp; this one reads "
+                                                  r"format 1"):
+            checkpoints.restore(2, states[2], TINY)
+
+
+def test_a_layout_of_another_train_state_is_refused_naming_the_array(saved_run, tmp_path):
     _, states = saved_run
     state = states[2]
     with Checkpoints(tmp_path, keep=1) as checkpoints:
         checkpoints.save(2, state.replace(epoch=jnp.zeros(2, jnp.int32)), TINY)
         checkpoints.wait()
-        with pytest.raises(CheckpointError, match=r"does not fit this version's train state: array \.epoch is"):
+        with pytest.raises(CheckpointError, match=r"\(checkpoint format 1\) does not fit this config's train state "
+                                                  r"in format 1: array \.epoch is"):
             checkpoints.restore(2, state, TINY)
 
 
@@ -510,22 +514,6 @@ def test_a_renamed_checkpoint_folder_is_refused_naming_both_epochs(saved_run, tm
         checkpoints.restore_latest(states[2], TINY)
     assert "holds the state of epoch 1, not 10" in str(err.value) and "renamed" in str(err.value)
     assert (copy / "checkpoints" / "10").exists() and (copy / "checkpoints" / "2").exists()
-
-
-def test_a_checkpoint_from_before_episode_links_restores_with_unlinked_rows(saved_run, tmp_path):
-    _, states = saved_run
-    state = states[2]
-    old = state.replace(replay=tuple(b.replace(data=b.data.replace(successor=None)) for b in state.replay))
-    assert not any(".successor" in entry["path"] for entry in layout_of(old))
-    with Checkpoints(tmp_path, keep=1) as checkpoints:
-        checkpoints.save(2, old, TINY)
-        checkpoints.wait()
-        restored = checkpoints.restore(2, jax.eval_shape(lambda: state), TINY)
-    for buffer in restored.replay:
-        np.testing.assert_array_equal(buffer.data.successor, buffer.capacity)
-    unlinked = state.replace(replay=tuple(b.replace(data=b.data.replace(successor=jnp.full_like(b.data.successor, b.capacity)))
-                                         for b in state.replay))
-    assert_bitwise_equal(restored, unlinked)
 
 
 def test_config_fields_a_checkpoint_predates_count_as_their_defaults():

@@ -19,7 +19,7 @@ LAYERS = [
     ["mjx_emp.algos.registry", "mjx_emp.phase2.presets"],
     ["mjx_emp.phase2.goal_spaces", "mjx_emp.phase2.latent", "mjx_emp.phase2.build"],
     ["mjx_emp.commands"],
-    ["mjx_emp.run.checkpoint", "mjx_emp.run.store", "mjx_emp.run.loop", "mjx_emp.run.jobs", "mjx_emp.run.evaluate",
+    ["mjx_emp.run.packing", "mjx_emp.run.checkpoint", "mjx_emp.run.store", "mjx_emp.run.loop", "mjx_emp.run.jobs", "mjx_emp.run.evaluate",
      "mjx_emp.run.flips", "mjx_emp.run.tracking",
      "mjx_emp.run.seeds", "mjx_emp.run.devices", "mjx_emp.run.hosts", "mjx_emp.run.preflight", "mjx_emp.run.rows",
      "mjx_emp.run.provenance", "mjx_emp.run.sweep", "mjx_emp.run.noise"],

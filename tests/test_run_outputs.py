@@ -11,7 +11,7 @@ import pytest
 from PIL import Image
 from tiny import SMALL, run_cli
 
-from mjx_emp.run import checkpoint, jobs
+from mjx_emp.run import jobs, packing
 from mjx_emp.viz.render import Recording, first_skills, marker_position
 
 
@@ -137,7 +137,7 @@ def test_phase2_trains_on_the_runs_skills_and_resumes_exactly(trained_run, phase
     for _ in range(3):
         straight, _ = trainer.train_epoch(straight)
     assert epoch == 3
-    for a, b in zip(jax.tree.leaves(checkpoint.pack(state)), jax.tree.leaves(checkpoint.pack(straight))):
+    for a, b in zip(jax.tree.leaves(packing.pack(state)), jax.tree.leaves(packing.pack(straight))):
         np.testing.assert_array_equal(a, b)
 
 
@@ -229,7 +229,7 @@ def test_an_export_keeps_the_skills_without_the_replay_and_phase_2_reads_it(trai
     assert not any(np.asarray(leaf).any() for leaf in jax.tree.leaves(lean.replay))
     # Phase 2 starts from the export exactly as from the run.
     trainer, _, _ = jobs.load_phase2(phase2_run)
-    for a, b in zip(checkpoint.pack(trainer.init(lean)).values(), checkpoint.pack(trainer.init(whole)).values()):
+    for a, b in zip(packing.pack(trainer.init(lean)).values(), packing.pack(trainer.init(whole)).values()):
         np.testing.assert_array_equal(a, b)
 
     refused = run_cli("resume", str(out))

@@ -20,235 +20,42 @@ import logging
 import os
 import re
 import time
-import zlib
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 import orbax.checkpoint as ocp
 
 from mjx_emp.checks import LOOP_FIELDS, config_from_dict
-from mjx_emp.counters import digits
 from mjx_emp.errors import CheckpointError, CheckpointWriteError
+from mjx_emp.run.packing import (
+    LEFT_OUT,
+    array_digests,
+    arrays_by_path,
+    layout_in_order,
+    layout_mismatch,
+    layout_of,
+    left_out_of,
+    pack,
+    packed_shapes,
+    tree_from_arrays,
+    verify_digests,
+    with_zeros_for,
+    without_fields,
+)
 from mjx_emp.run.store import CHECKPOINT_SUBDIR, REJECTED_SUBDIR
 
 RESUMABLE_CHANGES = LOOP_FIELDS
 """Config fields a resumed run may change: they do not alter what one epoch computes."""
 
+FORMAT = 1
+"""The checkpoint format this version writes and reads, kept in each checkpoint's digests item.
+A checkpoint without the number was written before formats were numbered (format 0); it is
+read when its arrays are laid out as format 1's are, and refused, naming its format, when not."""
 
-def _is_key(leaf: Any) -> bool:
-    return jnp.issubdtype(leaf.dtype, jax.dtypes.prng_key)
-
-
-def layout_of(tree: Any) -> list[dict]:
-    """Each array's path, shape, dtype and whether it is a PRNG key (stored as its key data).
-
-    Works on arrays and on ``jax.eval_shape`` structs alike, so a config's layout is known
-    without building its state.
-    """
-    layout = []
-    for path, leaf in jax.tree_util.tree_leaves_with_path(tree):
-        key = _is_key(leaf)
-        if key:
-            leaf = jax.eval_shape(jax.random.key_data, leaf)
-        layout.append({"path": jax.tree_util.keystr(path), "shape": list(leaf.shape),
-                       "dtype": np.dtype(leaf.dtype).name, "key": key})
-    return layout
-
-
-def pack(tree: Any) -> dict[str, np.ndarray]:
-    """Host copy of a pytree as one flat array per dtype, in ``layout_of`` order.
-
-    A few large arrays write far faster than hundreds of small ones (orbax pays about a
-    millisecond per array), and the copy is taken now, so the device buffers may be donated
-    while the write finishes in the background. PRNG keys go in as their raw key data; dtype
-    groups with no elements are left out (orbax refuses zero-size arrays).
-    """
-    groups: dict[str, list[np.ndarray]] = {}
-    for leaf in jax.tree.leaves(tree):
-        if _is_key(leaf):
-            leaf = jax.random.key_data(leaf)
-        host = np.asarray(leaf)
-        groups.setdefault(host.dtype.name, []).append(host.ravel())
-    packed = {name: np.concatenate(parts) for name, parts in groups.items()}  # concatenate copies
-    return {name: array for name, array in packed.items() if array.size}
-
-
-def digest(array: np.ndarray) -> int:
-    """CRC-32 of an array's bytes."""
-    return zlib.crc32(np.ascontiguousarray(array).view(np.uint8).reshape(-1))
-
-
-def array_digests(packed: dict[str, np.ndarray], layout: list[dict]) -> dict[str, int]:
-    """:func:`digest` of every array, by layout path: written with each checkpoint so that a
-    restore notices bytes that changed on disk (a flipped bit reads back without error)."""
-    return {path: digest(array) for path, array in arrays_by_path(packed, layout).items()}
-
-
-def data_files(item_dir: Path) -> list[str]:
-    """The files under a checkpoint item's directory (where its arrays' bytes lie)."""
-    return sorted(str(p) for p in Path(item_dir).rglob("*") if p.is_file())
-
-
-def packed_shapes(layout: list[dict]) -> dict[str, jax.ShapeDtypeStruct]:
-    """The flat per-dtype arrays that ``pack`` makes for a state of this layout."""
-    sizes: dict[str, int] = {}
-    for entry in layout:
-        sizes[entry["dtype"]] = sizes.get(entry["dtype"], 0) + int(np.prod(entry["shape"]))
-    return {name: jax.ShapeDtypeStruct((size,), np.dtype(name)) for name, size in sizes.items() if size}
-
-
-def unpack(packed: dict[str, Any], template: Any) -> Any:
-    """Inverse of ``pack``: ``template`` (a state or its ``jax.eval_shape``) gives the structure."""
-    layout = layout_of(template)
-    return tree_from_arrays(arrays_by_path(packed, layout), template, layout)
-
-
-def tree_from_arrays(arrays: dict[str, np.ndarray], template: Any, layout: list[dict]) -> Any:
-    """The pytree of ``template``'s structure (``layout`` is its layout) from one host array
-    per path; PRNG keys are wrapped back from their key data."""
-    leaves, treedef = jax.tree.flatten(template)
-    rebuilt = []
-    for like, entry in zip(leaves, layout):
-        value = jnp.asarray(arrays[entry["path"]])
-        if entry["key"]:
-            impl = jax.random.key_impl(like) if isinstance(like, jax.Array) else None
-            value = jax.random.wrap_key_data(value, impl=impl)
-        rebuilt.append(value)
-    return jax.tree.unflatten(treedef, rebuilt)
-
-
-def arrays_by_path(packed: dict[str, Any], layout: list[dict]) -> dict[str, np.ndarray]:
-    """Split ``pack``'s flat per-dtype arrays back into one host array per layout path."""
-    offsets = dict.fromkeys(packed, 0)
-    arrays = {}
-    for entry in layout:
-        size = int(np.prod(entry["shape"]))
-        start = offsets.get(entry["dtype"], 0)
-        flat = np.asarray(packed[entry["dtype"]])[start:start + size] if size else np.zeros(0, entry["dtype"])
-        offsets[entry["dtype"]] = start + size
-        arrays[entry["path"]] = flat.reshape(entry["shape"])
-    return arrays
-
-
-def upgrade_float_step_counters(arrays: dict[str, np.ndarray], expected: list[dict]) -> dict[str, np.ndarray]:
-    """Checkpoints written before step counters were exact hold ``env_steps`` as one float32;
-    today's states hold a :class:`~mjx_emp.counters.StepCounter` (``.hi``, ``.lo`` int32)."""
-    wanted = {entry["path"] for entry in expected}
-    upgraded = dict(arrays)
-    for path, value in arrays.items():
-        if f"{path}.hi" in wanted and f"{path}.lo" in wanted and value.shape == () and value.dtype == np.float32:
-            hi, lo = digits(int(value))
-            del upgraded[path]
-            upgraded[f"{path}.hi"], upgraded[f"{path}.lo"] = np.int32(hi), np.int32(lo)
-    return upgraded
-
-
-RENAMED_FIELDS = (
-    (".gc[", ".policies["), (".gs[", ".goal_spaces["), (".gs_replay[", ".goal_space_replay["),
-    (".skills[", ".skill_actors["), (".boxes[", ".goal_space_actors["),
-)
-"""(old, new) leading path parts of state fields renamed when the package was restructured:
-phase 1's goal-conditioned and goal-space learners and goal-space replay, phase 2's frozen
-actors."""
-
-
-def upgrade_renamed_fields(arrays: dict[str, np.ndarray], expected: list[dict]) -> dict[str, np.ndarray]:
-    """Arrays saved under a field's old name move to its new one (:data:`RENAMED_FIELDS`)."""
-    wanted = {entry["path"] for entry in expected}
-    upgraded = {}
-    for path, value in arrays.items():
-        for old, new in RENAMED_FIELDS:
-            if path.startswith(old) and path not in wanted and new + path[len(old):] in wanted:
-                path = new + path[len(old):]
-                break
-        upgraded[path] = value
-    return upgraded
-
-
-def upgrade_episode_links(arrays: dict[str, np.ndarray], expected: list[dict]) -> dict[str, np.ndarray]:
-    """Replay rows saved before they linked to their episode's next row get no link (the
-    buffer's capacity): hindsight goals and n-step targets then see each such row alone."""
-    upgraded = dict(arrays)
-    for entry in expected:
-        path = entry["path"]
-        if path.endswith(".data.successor") and path not in arrays:
-            capacity = entry["shape"][-1]
-            upgraded[path] = np.full(entry["shape"], capacity, np.dtype(entry["dtype"]))
-    return upgraded
-
-
-LEFT_OUT = "left_out"
-"""The digests item's key listing the state fields a checkpoint was written without."""
-
-
-def left_out_of(digests: dict | None) -> list[str]:
-    """The state fields a checkpoint's digests item says were not written (empty for a whole state,
-    or for a checkpoint older than digests)."""
-    return list((digests or {}).get(LEFT_OUT, []))
-
-
-def verify_digests(step_dir: Path, arrays: dict[str, np.ndarray], written: dict | None) -> None:
-    """Check every restored array of ``step_dir`` against the digests written with it (checkpoints
-    written before digests existed have none and are not checked)."""
-    if written is None:
-        return
-    for path, expected in written["arrays"].items():
-        found = digest(arrays[path]) if path in arrays else None
-        if found != expected:
-            raise CheckpointError(
-                f"{step_dir}: array {path} does not match the checksum written with it (crc32 "
-                f"{found if found is None else format(found, '08x')}, written {expected:08x}): the checkpoint "
-                f"changed on disk; its bytes lie in {', '.join(data_files(step_dir / 'state'))}"
-            )
-
-
-def without_fields(state: Any, fields: tuple[str, ...]) -> Any:
-    """``state`` (a dataclass pytree) with ``fields`` set to None, so that they hold no arrays;
-    the other arrays keep their paths."""
-    return dataclasses.replace(state, **dict.fromkeys(fields)) if fields else state
-
-
-def with_zeros_for(arrays: dict[str, np.ndarray], expected: list[dict], fields: list[str]) -> dict[str, np.ndarray]:
-    """``arrays`` plus zeros for every array of ``expected`` that lies under one of ``fields``
-    (the fields a checkpoint was written without): empty replays, environments never stepped."""
-    if not fields:
-        return arrays
-    heads = tuple(f".{field}{after}" for field in fields for after in (".", "["))
-    filled = dict(arrays)
-    for entry in expected:
-        path = entry["path"]
-        if path not in arrays and (path.startswith(heads) or path in {f".{field}" for field in fields}):
-            filled[path] = np.zeros(entry["shape"], np.dtype(entry["dtype"]))
-    return filled
-
-
-UPGRADES = (upgrade_renamed_fields, upgrade_float_step_counters, upgrade_episode_links)
-"""Conversions of arrays saved by earlier versions, applied in order when a checkpoint's
-layout is not today's. Each maps {path: array} to {path: array} given today's layout."""
-
-
-def layout_in_order(arrays: dict[str, np.ndarray], expected: list[dict]) -> list[dict]:
-    """The layout of ``arrays`` in ``expected``'s order, a missing path marked as such and
-    paths ``expected`` lacks appended, so :func:`layout_mismatch` can compare the two."""
-    known = {entry["path"] for entry in expected}
-    found = [{**entry, "shape": list(arrays[entry["path"]].shape), "dtype": arrays[entry["path"]].dtype.name}
-             if entry["path"] in arrays else {**entry, "shape": "(missing)"} for entry in expected]
-    return found + [{"path": path, "shape": list(value.shape), "dtype": value.dtype.name, "key": False}
-                    for path, value in arrays.items() if path not in known]
-
-
-def layout_mismatch(saved: list[dict], expected: list[dict]) -> str | None:
-    """The first array whose path, shape or dtype differs between two layouts, or None."""
-    for have, want in zip(saved, expected):
-        if have != want:
-            return f"array {have['path']} is {have['shape']} {have['dtype']}, expected {want['shape']} {want['dtype']}"
-    if len(saved) != len(expected):
-        return f"{len(saved)} arrays, expected {len(expected)}"
-    return None
+FORMAT_KEY = "format"
 
 
 def config_mismatches(saved: dict, expected: Any) -> list[str]:
@@ -264,6 +71,19 @@ def config_mismatches(saved: dict, expected: Any) -> list[str]:
         for name in fields
         if name not in RESUMABLE_CHANGES and saved.get(name) != want.get(name)
     ]
+
+
+def format_of(digests: dict | None) -> int:
+    """The format a checkpoint was written in (0: before formats were numbered)."""
+    return int((digests or {}).get(FORMAT_KEY, 0))
+
+
+def check_format(step_dir: Path, digests: dict | None) -> None:
+    """Refuse a checkpoint written in a format newer than :data:`FORMAT` (by a later mjx-emp)."""
+    written = format_of(digests)
+    if written > FORMAT:
+        raise CheckpointError(f"{step_dir}: checkpoint format {written} was written by a newer mjx-emp; this one "
+                              f"reads format {FORMAT}")
 
 
 @contextlib.contextmanager
@@ -358,7 +178,8 @@ class Checkpoints:
         start = time.perf_counter()
         kept = without_fields(state, leave_out)
         packed, layout = pack(kept), layout_of(kept)
-        digests = {"algorithm": "crc32", "arrays": array_digests(packed, layout), LEFT_OUT: list(leave_out)}
+        digests = {FORMAT_KEY: FORMAT, "algorithm": "crc32", "arrays": array_digests(packed, layout),
+                   LEFT_OUT: list(leave_out)}
         with self._write_errors():
             self.manager.save(epoch, args=ocp.args.Composite(
                 state=ocp.args.StandardSave(packed),
@@ -430,6 +251,8 @@ class Checkpoints:
             saved_layout = self.manager.restore(epoch, args=ocp.args.Composite(layout=ocp.args.JsonRestore())).layout
         except Exception as err:  # orbax and JSON raise many types; all mean "unreadable"
             raise CheckpointError(f"{step_dir / 'layout'}: unreadable ({type(err).__name__}: {err})") from err
+        written = self._digests(epoch)
+        check_format(step_dir, written)
         try:
             restored = self.manager.restore(epoch, args=ocp.args.Composite(
                 state=ocp.args.StandardRestore(packed_shapes(saved_layout)),
@@ -438,15 +261,13 @@ class Checkpoints:
             reason = str(err).split(" [tensorstore_spec=")[0]  # drop tensorstore's long spec dump
             raise CheckpointError(f"{step_dir / 'state'}: unreadable ({type(err).__name__}: {reason})") from err
         arrays = arrays_by_path(restored.state, saved_layout)
-        written = self._digests(epoch)
         verify_digests(step_dir, arrays, written)
         arrays = with_zeros_for(arrays, layout, left_out_of(written))
-        if saved_layout != layout:  # written by an earlier version
-            for upgrade in UPGRADES:
-                arrays = upgrade(arrays, layout)
-            mismatch = layout_mismatch(layout_in_order(arrays, layout), layout)
-            if mismatch:
-                raise CheckpointError(f"{step_dir / 'layout'} does not fit this version's train state: {mismatch}")
+        mismatch = layout_mismatch(layout_in_order(arrays, layout), layout)
+        if mismatch:
+            raise CheckpointError(f"{step_dir / 'layout'} (checkpoint format {format_of(written)}) does not fit this "
+                                  f"config's train state in format {FORMAT}: {mismatch}; a checkpoint of an earlier "
+                                  "format is read by the mjx-emp version that wrote it")
         state = tree_from_arrays(arrays, template, layout)
         stored = stored_epoch(state)
         if stored is not None and stored != epoch:
@@ -455,7 +276,7 @@ class Checkpoints:
         return state
 
     def _digests(self, epoch: int) -> dict | None:
-        """The digests item written with ``epoch``'s checkpoint (None for checkpoints older than digests)."""
+        """The digests item written with ``epoch``'s checkpoint (None for a checkpoint written without one)."""
         step_dir = self.step_dir(epoch)
         if not (step_dir / "digests").exists():
             return None
