@@ -21,11 +21,10 @@ from mjx_emp import cli
 from mjx_emp.algos.he.agent import HEAgent
 from mjx_emp.algos.registry import config_from_json
 from mjx_emp.errors import CheckpointError, CheckpointWriteError, TrainingDiverged
-from mjx_emp.run import checkpoint
+from mjx_emp.run import checkpoint, loop
 from mjx_emp.run.checkpoint import Checkpoints, config_mismatches
 from mjx_emp.run.packing import layout_mismatch, layout_of, pack, unpack
 from mjx_emp.run.jobs import load_run
-from mjx_emp.run.loop import train_epochs
 from mjx_emp.run.store import keep_metrics_through, read_metrics, write_config
 
 
@@ -177,9 +176,9 @@ def test_nan_stops_the_run_and_keeps_the_last_good_checkpoint(tmp_path):
     poisoned = poisoned.replace(policies=(poisoned.policies[0].replace(actor=actor), *poisoned.policies[1:]))
     with Checkpoints(tmp_path) as checkpoints:
         checkpoints.save(2, good, TINY)
-        with pytest.raises(TrainingDiverged,
-                           match="epoch 3: level 0 goal-conditioned .*nan.*last good checkpoint is epoch 2"):
-            train_epochs(trainer, poisoned, checkpoints, tmp_path, lambda metrics: None)
+    with pytest.raises(TrainingDiverged, match="epoch 3: level 0 goal-conditioned .*nan.*last good checkpoint is epoch 2"):
+        loop.train(trainer, poisoned, [loop.Member(trainer, tmp_path)])
+    with Checkpoints(tmp_path) as checkpoints:
         assert checkpoints.epochs() == [2]
         assert_bitwise_equal(checkpoints.restore(2, good, TINY), good)
 
@@ -411,21 +410,38 @@ def test_a_second_writer_is_refused_naming_the_holder_and_a_killed_holders_lock_
     assert (run_dir / ".lock").read_text() == ""  # released when the resume ended
 
 
-def test_a_failed_checkpoint_write_stops_the_run_naming_the_intact_checkpoint(tmp_path):
+def test_a_failed_checkpoint_write_stops_the_run_naming_the_intact_checkpoint(tmp_path, monkeypatch):
     trainer = tiny_trainer()
     with Checkpoints(tmp_path, keep=3) as checkpoints:
         checkpoints.save(0, trainer.init(), TINY)
-        checkpoints.wait()
 
-        def full_disk(*args, **kwargs):
-            raise OSError(errno.ENOSPC, "No space left on device")
+    def full_disk(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
 
-        checkpoints.manager.save = full_disk  # as orbax reports a full disk
-        with pytest.raises(CheckpointWriteError, match="No space left on device.*newest complete checkpoint is "
-                                                       "epoch 0, left intact"):
-            train_epochs(trainer, trainer.init(), checkpoints, tmp_path, lambda metrics: None)
+    monkeypatch.setattr(checkpoint.ocp.CheckpointManager, "save", full_disk)  # as orbax reports a full disk
+    with pytest.raises(CheckpointWriteError, match="No space left on device.*newest complete checkpoint is "
+                                                   "epoch 0, left intact"):
+        loop.train(trainer, trainer.init(), [loop.Member(trainer, tmp_path)])
+    monkeypatch.undo()
+    with Checkpoints(tmp_path) as checkpoints:
         assert checkpoints.epochs() == [0]
     assert not (tmp_path / "metrics.jsonl").read_text()  # no metrics line for the epoch that was not kept
+
+
+def test_a_new_run_s_epoch_0_is_written_by_the_loop_and_a_resumed_epoch_is_not_written_again(tmp_path):
+    one_epoch = dataclasses.replace(TINY, epochs=1)
+    trainer = HEAgent(one_epoch)
+    loop.train(trainer, trainer.init(), [loop.Member(trainer, tmp_path)])
+    with Checkpoints(tmp_path) as checkpoints:
+        assert checkpoints.epochs() == [0, 1]
+        first = checkpoints.restore(1, jax.eval_shape(trainer.init), one_epoch)
+    longer = HEAgent(dataclasses.replace(one_epoch, epochs=2))
+    written = (tmp_path / "checkpoints" / "1" / "_CHECKPOINT_METADATA").stat().st_mtime_ns
+    loop.train(longer, first, [loop.Member(longer, tmp_path)])
+    with Checkpoints(tmp_path) as checkpoints:
+        assert checkpoints.epochs() == [0, 1, 2]
+    assert (tmp_path / "checkpoints" / "1" / "_CHECKPOINT_METADATA").stat().st_mtime_ns == written
+    assert [line["epoch"] for line in read_metrics(tmp_path)] == [1, 2]
 
 
 def test_a_run_on_a_full_filesystem_exits_1_and_resumes_once_there_is_room(tmp_path):

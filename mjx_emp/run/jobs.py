@@ -30,7 +30,8 @@ from mjx_emp.commands import (
 )
 from mjx_emp.errors import ConfigError, RenderError
 from mjx_emp.phase2.config import Phase2Config
-from mjx_emp.run.loop import env_steps_of, train_to_the_end
+from mjx_emp.run import loop
+from mjx_emp.run.loop import Member, env_steps_of, epoch_of, progress_reporter
 from mjx_emp.run.provenance import EXPORT_OF
 from mjx_emp.run.store import (
     CONFIG_FILE,
@@ -52,16 +53,17 @@ from mjx_emp.run.store import (
 from mjx_emp.run.tracking import Film, Trackers, open_trackers
 
 
-def _to_the_end(trainer, state, checkpoints, run_dir: Path, tracking: Tracking,
-                on_epoch: Callable[[dict], None] | None = None, film: Film | None = None):
-    """Train to the config's epoch count, each epoch's metrics also handed to the trackers that
-    ``tracking`` asks for and to ``on_epoch``; at the end, the trackers get ``film``'s video."""
-    with open_trackers(tracking, run_dir, config_json(trainer.cfg)) as trackers:
-        report = [call for call in (trackers and trackers.log, on_epoch) if call is not None]
-        state = train_to_the_end(trainer, state, checkpoints, run_dir,
-                                 (lambda metrics: [call(metrics) for call in report]) if report else None)
+def _train_run(program, state, run_dir: Path, keep_checkpoints: int, tracking: Tracking,
+               on_epoch: Callable[[dict], None] | None = None, film: Film | None = None):
+    """One run through the training loop (:func:`mjx_emp.run.loop.train`), which owns its
+    checkpoints: each epoch's metrics go to the progress display, to the trackers ``tracking``
+    asks for and to ``on_epoch``; at the end the trackers get ``film``'s video."""
+    with open_trackers(tracking, run_dir, config_json(program.cfg)) as trackers:
+        with progress_reporter(program.cfg.epochs, epoch_of(state), program.describe) as show:
+            state = loop.train(program, state, [Member(program, run_dir)], keep_checkpoints,
+                          (show, trackers and trackers.log, on_epoch))
         if trackers is not None and film is not None and tracking.video_steps:
-            _film_for_trackers(trackers, film, trainer, state, run_dir, tracking.video_steps)
+            _film_for_trackers(trackers, film, program, state, run_dir, tracking.video_steps)
         return state
 
 
@@ -80,20 +82,6 @@ def _film_for_trackers(trackers: Trackers, film: Film, trainer, state, run_dir: 
         return
     trackers.log_video(video)
     print(f"{video.path}: logged to the trackers", flush=True)
-
-
-def _train_new(trainer, state, run_dir: Path, keep_checkpoints: int, tracking: Tracking,
-               on_epoch: Callable[[dict], None] | None = None, film: Film | None = None):
-    """Write the config, checkpoint ``state`` as epoch 0, and train to the end (with several
-    hosts, the lead writes)."""
-    from mjx_emp.run.checkpoint import Checkpoints
-    from mjx_emp.run.hosts import gather_to_host, is_lead
-
-    if is_lead():
-        write_config(run_dir, trainer.cfg)
-    checkpoints = Checkpoints(run_dir, keep_checkpoints)
-    checkpoints.save(0, gather_to_host(state), trainer.cfg)
-    return _to_the_end(trainer, state, checkpoints, run_dir, tracking, on_epoch, film)
 
 
 def training_program(cfg, num_devices: int = 0):
@@ -151,11 +139,13 @@ def train(exp: TrainExperiment, on_epoch: Callable[[dict], None] | None = None, 
     wait_for_all("mjx-emp: every process checked the run directory")  # before the lead writes into it
     print(f"run directory: {run_dir}", flush=True)
     with run_lock(run_dir, "run_dir"):
-        if record is not None and is_lead():
-            write_run_record(run_dir, record)
+        if is_lead():  # with several hosts, the lead writes
+            if record is not None:
+                write_run_record(run_dir, record)
+            write_config(run_dir, trainer.cfg)
         if cfg.shards > 1:
             print(f"split into {cfg.shards} shards on {trainer.num_devices} device(s)", flush=True)
-        return _train_new(trainer, trainer.init(), run_dir, exp.keep_checkpoints, exp.tracking, on_epoch, film)
+        return _train_run(trainer, trainer.init(), run_dir, exp.keep_checkpoints, exp.tracking, on_epoch, film)
 
 
 def check_memory(program) -> None:
@@ -263,7 +253,8 @@ def _resume(exp: ResumeExperiment, load: Callable, start_over: Callable, film: F
             print(f"{run_dir} was stopped before its first checkpoint; starting it over from its {CONFIG_FILE}",
                   flush=True)
             keep_metrics_through(run_dir / METRICS_FILE, 0)
-            return _train_new(trainer, trainer.init(), run_dir, exp.keep_checkpoints, exp.tracking, film=film)
+            write_config(run_dir, trainer.cfg)
+            return _train_run(trainer, trainer.init(), run_dir, exp.keep_checkpoints, exp.tracking, film=film)
         trainer, epoch, state = load(run_dir, exp.fallback, resumed_stops(exp), field="resume")
         if trainer.cfg.epochs < epoch:  # before anything is rewritten
             raise ConfigError(f"epochs: {run_dir} is at epoch {epoch}; give at least that many; got {trainer.cfg.epochs}")
@@ -271,13 +262,10 @@ def _resume(exp: ResumeExperiment, load: Callable, start_over: Callable, film: F
         if exp.max_env_steps and steps >= exp.max_env_steps:  # a budget already spent would train nothing
             raise ConfigError(f"max_env_steps: {run_dir} is at {steps} env steps (epoch {epoch}); give a larger "
                               f"budget, or 0 to lift it; got {exp.max_env_steps}")
-        from mjx_emp.run.checkpoint import Checkpoints
-
         print(f"resuming {run_dir} from epoch {epoch}", flush=True)
         keep_metrics_through(run_dir / METRICS_FILE, epoch)
         write_config(run_dir, trainer.cfg)
-        checkpoints = Checkpoints(run_dir, exp.keep_checkpoints)
-        return _to_the_end(trainer, state, checkpoints, run_dir, exp.tracking, film=film)
+        return _train_run(trainer, state, run_dir, exp.keep_checkpoints, exp.tracking, film=film)
 
 
 def resume(exp: ResumeExperiment, film: Film | None = None):
@@ -349,7 +337,8 @@ def train_phase2(exp: Phase2Experiment, film: Film | None = None, record: dict |
         write_atomically(out / SKILLS_FILE, json.dumps(config_json(skills.cfg), indent=1))
         if record is not None:
             write_run_record(out, record)
-        return _train_new(trainer, trainer.init(skills_state), out, exp.keep_checkpoints, exp.tracking, film=film)
+        write_config(out, trainer.cfg)
+        return _train_run(trainer, trainer.init(skills_state), out, exp.keep_checkpoints, exp.tracking, film=film)
 
 
 def load_phase2(phase2_dir: Path, fallback: bool = False, stops: dict | None = None, field: str = "run_dir",

@@ -14,7 +14,7 @@ import json
 import os
 import signal
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -54,11 +54,10 @@ def progress_reporter(total_epochs: int, first_epoch: int, describe: Callable[[d
 
 @dataclasses.dataclass(frozen=True)
 class Member:
-    """One run directory that a training program writes: the agent whose config it records
-    (its metrics and divergence check), its checkpoints and its directory."""
+    """One run directory that a training program writes, and the agent whose config it records
+    (its checkpoints' config, its metrics and divergence check)."""
 
     trainer: Any
-    checkpoints: Any
     run_dir: Path
 
 
@@ -76,7 +75,7 @@ def _first(array) -> int:
     return int(np.asarray(array).reshape(-1)[0])
 
 
-def _epoch_of(state) -> int:
+def epoch_of(state) -> int:
     """A train state's epoch (every shard of a split run holds the same)."""
     return _first(state.epoch)
 
@@ -95,33 +94,89 @@ def _budget_spent(states: list, budgets: list[int | None]) -> bool:
         env_steps_of(state) >= budget for state, budget in zip(states, budgets))
 
 
-def train_members(program, state, members: list[Member], report: Callable[[dict], None],
-                  split: Callable[[Any, Any], list[tuple[Any, Any]]] = _alone):
-    """Train until the members' epoch count, or until every member has spent its
-    ``max_env_steps``, checkpointing and logging each finished epoch.
+def train(program, state, members: list[Member], keep_checkpoints: int = 3,
+          on_epoch: Sequence[Callable[[dict], None] | None] = (),
+          split: Callable[[Any, Any], list[tuple[Any, Any]]] = _alone):
+    """The training loop: train until the members' epoch count, or until every member has spent
+    its ``max_env_steps``, writing each member's checkpoint and metrics line for every epoch;
+    returns the final state.
 
-    ``program.train_epoch(state) -> (state, stats)`` trains every member at once (one agent,
-    or several seeds under one vmap); ``split(state, stats)`` gives each member's share.
-    Raises TrainingDiverged, saving nothing of that epoch for any member, when a member's
-    losses or parameters are not finite; each member's newest checkpoint is then its last
-    good epoch. ``report`` sees the first member's metrics. ``seconds`` in a member's
-    metrics is the wall time of the whole program's epoch.
+    It owns every checkpoint of the run: it opens each member's (keeping the newest
+    ``keep_checkpoints``), writes the state it starts from when that epoch has none yet (a new
+    run's epoch 0), and closes them, waiting for the writes, when it returns or raises.
+    ``program.train_epoch(state) -> (state, stats)`` trains every member at once (one agent, a
+    split run's shards, or several seeds under one vmap); ``split(state, stats)`` gives each
+    member's share. Each callable of ``on_epoch`` (None skipped) sees the first member's metrics
+    once its epoch is on disk: progress, trackers, a caller's own. A member whose losses or
+    parameters are not finite raises TrainingDiverged and nothing of that epoch is kept for
+    any member; SIGINT and SIGTERM raise Interrupted once the epoch being written is complete.
+    ``seconds`` in a member's metrics is the wall time of the whole program's epoch.
     """
+    import jax
+
+    from mjx_emp.run.checkpoint import Checkpoints
     from mjx_emp.run.hosts import gather_to_host, is_lead
 
+    report = [call for call in on_epoch if call is not None]
     epochs = members[0].trainer.cfg.epochs
+    budgets = [member.trainer.cfg.max_env_steps for member in members]
     lead = is_lead()  # with several hosts, process 0 alone writes metrics (and checkpoints)
     stops = _SignalStop()
-    try:
-        with stops.installed():
-            return _train_members(program, state, members, report, split, gather_to_host, lead, epochs, stops)
-    except Interrupted as stop:
-        for member in members:
-            member.checkpoints.wait()  # the write in flight completes before we go
-        kept = members[0].checkpoints.epochs()
-        newest = f"epoch {kept[-1]} in {members[0].checkpoints.directory}" if kept else "none"
-        raise Interrupted(f"stopped by {signal.Signals(stop.signum).name}; the newest checkpoint is {newest}; "
-                          f"continue with `--resume {members[0].run_dir}`", stop.signum) from None
+    with contextlib.ExitStack() as stack:
+        kept = [stack.enter_context(Checkpoints(member.run_dir, keep_checkpoints)) for member in members]
+        logs = [stack.enter_context(_metrics_log(member.run_dir) if lead else open(os.devnull, "wb"))
+                for member in members]
+        stack.enter_context(stops.installed())
+        try:
+            parts = split(gather_to_host(state), None)
+            for member, checkpoints, (member_state, _) in zip(members, kept, parts):
+                if epoch_of(member_state) not in checkpoints.epochs():  # a new run's epoch 0
+                    checkpoints.save(epoch_of(member_state), member_state, member.trainer.cfg)
+            while not (epoch_of(parts[0][0]) >= epochs or _budget_spent([p[0] for p in parts], budgets)):
+                start = time.perf_counter()
+                state, stats = program.train_epoch(state)
+                jax.block_until_ready(state)
+                seconds = time.perf_counter() - start
+                parts = split(*gather_to_host((state, stats)))
+                _refuse_divergence(members, kept, parts)
+                with stops.held():  # a checkpoint and its metrics line are written together
+                    for member, checkpoints, log, (member_state, member_stats) in zip(members, kept, logs, parts):
+                        blocked = checkpoints.save(epoch_of(member_state), member_state, member.trainer.cfg)
+                        metrics = member.trainer.metrics(member_state, member_stats, seconds)
+                        metrics["checkpoint_blocked_s"] = blocked  # the write itself continues in the background
+                        with writing(member.run_dir / METRICS_FILE, member.run_dir):
+                            log.write((json.dumps(metrics) + "\n").encode())
+                        if member is members[0] and lead:
+                            for call in report:
+                                call(metrics)
+            for checkpoints in kept:
+                checkpoints.wait()
+            return state
+        except Interrupted as stop:
+            for checkpoints in kept:
+                checkpoints.wait()  # the write in flight completes before we go
+            newest = kept[0].epochs()
+            where = f"epoch {newest[-1]} in {kept[0].directory}" if newest else "none"
+            raise Interrupted(f"stopped by {signal.Signals(stop.signum).name}; the newest checkpoint is {where}; "
+                              f"continue with `--resume {members[0].run_dir}`", stop.signum) from None
+
+
+def _refuse_divergence(members: list[Member], kept: list, parts: list[tuple[Any, Any]]) -> None:
+    """Raise TrainingDiverged, naming the first member's problem and its last good checkpoint,
+    when any member's epoch is not finite (:meth:`divergence` of its agent)."""
+    problems = [(checkpoints, problem) for member, checkpoints, part in zip(members, kept, parts)
+                if (problem := member.trainer.divergence(*part))]
+    if not problems:
+        return
+    for checkpoints in kept:
+        checkpoints.wait()
+    checkpoints, problem = problems[0]
+    newest = checkpoints.epochs()
+    raise TrainingDiverged(
+        f"epoch {epoch_of(parts[0][0])}: {problem}. Stopped without saving this epoch; the last good "
+        f"checkpoint is epoch {newest[-1] if newest else None} in {checkpoints.directory}"
+        + (f" (and likewise for {len(members) - 1} other seed run(s))" if len(members) > 1 else "")
+    )
 
 
 class _SignalStop:
@@ -169,65 +224,3 @@ def _metrics_log(run_dir: Path):
     :func:`~mjx_emp.run.store.writing`)."""
     with writing(run_dir / METRICS_FILE, run_dir):
         return open(run_dir / METRICS_FILE, "ab", buffering=0)
-
-
-def _train_members(program, state, members, report, split, gather_to_host, lead: bool, epochs: int,
-                   stops: _SignalStop):
-    import jax
-
-    with contextlib.ExitStack() as stack:
-        logs = [stack.enter_context(_metrics_log(member.run_dir) if lead else open(os.devnull, "wb"))
-                for member in members]
-        budgets = [member.trainer.cfg.max_env_steps for member in members]
-        while True:
-            states = [part[0] for part in split(state, None)]
-            if _epoch_of(states[0]) >= epochs or _budget_spent(states, budgets):
-                break
-            start = time.perf_counter()
-            state, stats = program.train_epoch(state)
-            jax.block_until_ready(state)
-            seconds = time.perf_counter() - start
-            parts = split(*gather_to_host((state, stats)))
-            epoch = _epoch_of(parts[0][0])
-            problems = [(m, m.trainer.divergence(*part)) for m, part in zip(members, parts)]
-            problems = [(m, problem) for m, problem in problems if problem]
-            if problems:
-                for member in members:
-                    member.checkpoints.wait()
-                member, problem = problems[0]
-                kept = member.checkpoints.epochs()
-                raise TrainingDiverged(
-                    f"epoch {epoch}: {problem}. Stopped without saving this epoch; the last good "
-                    f"checkpoint is epoch {kept[-1] if kept else None} in {member.checkpoints.directory}"
-                    + (f" (and likewise for {len(members) - 1} other seed run(s))" if len(members) > 1 else "")
-                )
-            with stops.held():  # a checkpoint and its metrics line are written together
-                for member, log, (member_state, member_stats) in zip(members, logs, parts):
-                    save_seconds = member.checkpoints.save(epoch, member_state, member.trainer.cfg)
-                    metrics = member.trainer.metrics(member_state, member_stats, seconds)
-                    metrics["checkpoint_blocked_s"] = save_seconds  # the write itself continues in the background
-                    with writing(member.run_dir / METRICS_FILE, member.run_dir):
-                        log.write((json.dumps(metrics) + "\n").encode())
-                        log.flush()
-                    if member is members[0] and lead:
-                        report(metrics)
-    for member in members:
-        member.checkpoints.wait()
-    return state
-
-
-def train_epochs(trainer, state, checkpoints, run_dir: Path, report: Callable[[dict], None]):
-    """Train one run until ``trainer.cfg.epochs`` (see :func:`train_members`).
-
-    ``trainer`` is any algorithm's agent or a phase-2 trainer (each offers ``train_epoch``,
-    ``divergence`` and ``metrics``).
-    """
-    return train_members(trainer, state, [Member(trainer, checkpoints, run_dir)], report)
-
-
-def train_to_the_end(trainer, state, checkpoints, run_dir: Path, on_epoch: Callable[[dict], None] | None = None):
-    """Report progress while training to ``cfg.epochs`` (and hand each epoch's metrics to
-    ``on_epoch``); then close ``checkpoints`` (waits for writes)."""
-    with checkpoints, progress_reporter(trainer.cfg.epochs, _epoch_of(state), trainer.describe) as show:
-        report = show if on_epoch is None else (lambda metrics: (show(metrics), on_epoch(metrics)))
-        return train_epochs(trainer, state, checkpoints, run_dir, report)

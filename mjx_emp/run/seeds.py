@@ -81,23 +81,13 @@ def train_seeds(exp: TrainExperiment, record: dict | None = None) -> Any:
 
 
 def _train_group(exp: TrainExperiment, algorithm, dirs: list[Path]) -> Any:
-    from mjx_emp.run.checkpoint import Checkpoints
-
     agents = [make_agent(dataclasses.replace(exp.config, seed=seed)) for seed in exp.seeds]
     group = SeedGroup(agents[0], tuple(exp.seeds))
-    state = group.init()
-    members = []
-    for agent, run_dir, (seed_state, _) in zip(agents, dirs, group.split(state, None)):
+    for agent, run_dir in zip(agents, dirs):
         store.write_config(run_dir, agent.cfg)
-        checkpoints = Checkpoints(run_dir, exp.keep_checkpoints)
-        checkpoints.save(0, seed_state, agent.cfg)
-        members.append(loop.Member(agent, checkpoints, Path(run_dir)))
-    try:
-        with loop.progress_reporter(exp.config.epochs, 0, agents[0].describe) as report:
-            return loop.train_members(group, state, members, report, group.split)
-    finally:
-        for member in members:
-            member.checkpoints.close()
+    members = [loop.Member(agent, Path(run_dir)) for agent, run_dir in zip(agents, dirs)]
+    with loop.progress_reporter(exp.config.epochs, 0, agents[0].describe) as report:
+        return loop.train(group, group.init(), members, exp.keep_checkpoints, (report,), group.split)
 
 
 def resume_seeds(dirs: list[Path], configs: list[Any], keep_checkpoints: int = 3) -> Any:
@@ -111,27 +101,36 @@ def resume_seeds(dirs: list[Path], configs: list[Any], keep_checkpoints: int = 3
     group the resumed seeds end where an uninterrupted group would. ``configs`` are the seeds'
     configs (epochs and step budget may differ from the runs' own, as for ``mjx-emp resume``).
     """
-    from mjx_emp.run.checkpoint import Checkpoints
 
     agents = [make_agent(cfg) for cfg in configs]
     group = SeedGroup(agents[0], tuple(cfg.seed for cfg in configs))
-    with contextlib.ExitStack() as stack:
+    members = [loop.Member(agent, Path(run_dir)) for agent, run_dir in zip(agents, dirs)]
+    with contextlib.ExitStack() as locks:
         for run_dir in dirs:
-            stack.enter_context(store.run_lock(run_dir, "resume"))
-        members = [loop.Member(agent, stack.enter_context(Checkpoints(run_dir, keep_checkpoints)), Path(run_dir))
-                   for agent, run_dir in zip(agents, dirs)]
-        epoch = min(member.checkpoints.epochs()[-1] for member in members)
-        template = jax.eval_shape(agents[0].init)
-        states = []
-        for member in members:
-            states.append(member.checkpoints.restore(epoch, template, member.trainer.cfg))
-            member.checkpoints.set_aside_newer_than(epoch)
-            store.keep_metrics_through(member.run_dir / store.METRICS_FILE, epoch)
-            store.write_config(member.run_dir, member.trainer.cfg)
+            locks.enter_context(store.run_lock(run_dir, "resume"))
+        epoch, states = _restore_common_epoch(members)
         print(f"resuming {', '.join(str(d) for d in dirs)} from epoch {epoch} as one program", flush=True)
         state = jax.tree.map(lambda *leaves: jnp.stack(leaves), *states)
         with loop.progress_reporter(configs[0].epochs, epoch, agents[0].describe) as report:
-            return loop.train_members(group, state, members, report, group.split)
+            return loop.train(group, state, members, keep_checkpoints, (report,), group.split)
+
+
+def _restore_common_epoch(members: list[loop.Member]) -> tuple[int, list[Any]]:
+    """The newest epoch every member has a checkpoint of, and each member's state of it; a
+    member's newer checkpoints are set aside and its metrics cut back to that epoch."""
+    from mjx_emp.run.checkpoint import Checkpoints
+
+    with contextlib.ExitStack() as stack:
+        kept = [stack.enter_context(Checkpoints(member.run_dir)) for member in members]
+        epoch = min(checkpoints.epochs()[-1] for checkpoints in kept)
+        template = jax.eval_shape(members[0].trainer.init)
+        states = []
+        for member, checkpoints in zip(members, kept):
+            states.append(checkpoints.restore(epoch, template, member.trainer.cfg))
+            checkpoints.set_aside_newer_than(epoch)
+            store.keep_metrics_through(member.run_dir / store.METRICS_FILE, epoch)
+            store.write_config(member.run_dir, member.trainer.cfg)
+    return epoch, states
 
 
 def seed_group_of(run_dir: Path) -> list[Path]:
