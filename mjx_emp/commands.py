@@ -12,10 +12,9 @@ from typing import Annotated, Generic, Literal, TypeVar
 
 import tyro
 
-from mjx_emp.algos.registry import algorithm_of
 from mjx_emp.envs.registry import DOMAIN_NAMES
 from mjx_emp.errors import ConfigError
-from mjx_emp.phase2.config import Phase2Config, check_phase2_config
+from mjx_emp.phase2.config import Phase2Config
 
 ConfigT = TypeVar("ConfigT")
 
@@ -322,9 +321,9 @@ def _check_tracking(tracking: Tracking) -> None:
 
 
 def check_train(exp: TrainExperiment) -> None:
-    """Refuse a training request before anything is built or written: its config (by the
-    algorithm's registry entry), ``keep_checkpoints``, ``num_devices``, tracking and ``seeds``."""
-    algorithm_of(exp.config).check(exp.config)
+    """Refuse a training request's own fields before anything is built or written:
+    ``keep_checkpoints``, ``num_devices``, tracking and ``seeds`` (the config itself is checked
+    where its agent is built, :func:`mjx_emp.algos.registry.make_agent`)."""
     _check_keep(exp.keep_checkpoints)
     _check_devices(exp.num_devices)
     _check_tracking(exp.tracking)
@@ -368,9 +367,8 @@ def check_export(exp: ExportExperiment) -> None:
 
 
 def check_phase2(exp: Phase2Experiment) -> None:
-    """Refuse a phase-2 request before the phase-1 run is read: its config, ``keep_checkpoints``
-    and a missing ``run_dir``."""
-    check_phase2_config(exp.config)
+    """Refuse a phase-2 request's own fields before the phase-1 run is read: ``keep_checkpoints``
+    and a missing ``run_dir`` (the config is checked where the phase-2 trainer is built)."""
     _check_keep(exp.keep_checkpoints)
     _check_tracking(exp.tracking)
     if not exp.run_dir:

@@ -16,9 +16,9 @@ from hypothesis import strategies as st
 from tiny import run_cli
 
 from mjx_emp import cli, commands
-from mjx_emp.algos.registry import all_presets
+from mjx_emp.algos.registry import algorithm_of, all_presets
 from mjx_emp.errors import ConfigError
-from mjx_emp.phase2.config import Phase2Config
+from mjx_emp.phase2.config import Phase2Config, check_phase2_config
 from mjx_emp.phase2.presets import PHASE2_PRESETS
 
 
@@ -48,11 +48,23 @@ def check_report(exp: commands.ReportExperiment) -> None:
         raise ConfigError(f"reps: must be >= 1; got {exp.reps}")
 
 
+def check_train(exp: commands.TrainExperiment) -> None:
+    """The request's checks, then the config's, which building the agent runs."""
+    commands.check_train(exp)
+    algorithm_of(exp.config).check(exp.config)
+
+
+def check_phase2(exp: commands.Phase2Experiment) -> None:
+    """The request's checks, then the config's, which building the phase-2 trainer runs."""
+    commands.check_phase2(exp)
+    check_phase2_config(exp.config)
+
+
 PHASE1 = type(all_presets()["point-mass-k1"][1])
 COMMANDS = {
-    "train": (["train", "point-mass-k1"], commands.check_train, numeric_fields(commands.TrainExperiment, PHASE1)),
+    "train": (["train", "point-mass-k1"], check_train, numeric_fields(commands.TrainExperiment, PHASE1)),
     "resume": (["resume", "no-run"], commands.check_resume, numeric_fields(commands.ResumeExperiment)),
-    "phase2": (["phase2", next(iter(PHASE2_PRESETS)), "no-run"], commands.check_phase2,
+    "phase2": (["phase2", next(iter(PHASE2_PRESETS)), "no-run"], check_phase2,
                numeric_fields(commands.Phase2Experiment, Phase2Config)),
     "export": (["export", "no-run", "--out", "no-export"], commands.check_export,
                numeric_fields(commands.ExportExperiment)),

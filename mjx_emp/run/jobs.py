@@ -127,10 +127,7 @@ def train(exp: TrainExperiment, on_epoch: Callable[[dict], None] | None = None, 
         from mjx_emp.run.seeds import train_seeds
 
         return train_seeds(exp, record)
-    algorithm = algorithm_of(exp.config)
     cfg = split_for_devices(exp.config, exp.num_devices)
-    if cfg is not exp.config:
-        algorithm.check(cfg)  # the split: its environments must divide among the shards
     if several and not exp.run_dir:
         raise ConfigError("run_dir: several hosts must be given the same --run-dir (on a shared filesystem)")
     trainer = training_program(cfg, exp.num_devices)

@@ -18,7 +18,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from mjx_emp.algos.registry import algorithm_of, make_agent
+from mjx_emp.algos.registry import make_agent
 from mjx_emp.commands import TrainExperiment
 from mjx_emp.run import loop, store
 from mjx_emp.run.provenance import run_record
@@ -66,28 +66,23 @@ def _jit_group_epoch(group: SeedGroup, state: Any) -> tuple[Any, Any]:
 def train_seeds(exp: TrainExperiment, record: dict | None = None) -> Any:
     """Train ``exp.seeds`` of ``exp.config`` as one vmapped program, one run directory per
     seed (RUN_DIR-s<seed>), each keeping ``record`` (how it was asked for); returns the stacked
-    final state. The request is one that
-    :func:`mjx_emp.commands.check_train` accepted (``jobs.train`` checks it)."""
-    algorithm = algorithm_of(exp.config)
+    final state. The request is one that :func:`mjx_emp.commands.check_train` accepted
+    (``jobs.train`` checks it); the config is checked as the seeds' agents are built, before
+    any directory is made."""
+    agents = [make_agent(dataclasses.replace(exp.config, seed=seed)) for seed in exp.seeds]
     base = exp.run_dir or store.default_run_dir(exp.config)
     dirs = [store.fresh_run_dir(path, "run_dir", "a run", "mjx-emp train") for path in store.seed_run_dirs(base, exp.seeds)]
     print(f"run directories: {', '.join(str(d) for d in dirs)}", flush=True)
     with contextlib.ExitStack() as locks:
-        for run_dir in dirs:
+        for agent, run_dir in zip(agents, dirs):
             locks.enter_context(store.run_lock(run_dir, "run_dir"))
-            group = {"seed_group": [str(d) for d in dirs]}  # a resume continues them together (resume_seeds)
-            store.write_run_record(run_dir, {**(record or run_record(None, {})), **group})
-        return _train_group(exp, algorithm, dirs)
-
-
-def _train_group(exp: TrainExperiment, algorithm, dirs: list[Path]) -> Any:
-    agents = [make_agent(dataclasses.replace(exp.config, seed=seed)) for seed in exp.seeds]
-    group = SeedGroup(agents[0], tuple(exp.seeds))
-    for agent, run_dir in zip(agents, dirs):
-        store.write_config(run_dir, agent.cfg)
-    members = [loop.Member(agent, Path(run_dir)) for agent, run_dir in zip(agents, dirs)]
-    with loop.progress_reporter(exp.config.epochs, 0, agents[0].describe) as report:
-        return loop.train(group, group.init(), members, exp.keep_checkpoints, (report,), group.split)
+            together = {"seed_group": [str(d) for d in dirs]}  # a resume continues them together (resume_seeds)
+            store.write_run_record(run_dir, {**(record or run_record(None, {})), **together})
+            store.write_config(run_dir, agent.cfg)
+        group = SeedGroup(agents[0], tuple(exp.seeds))
+        members = [loop.Member(agent, Path(run_dir)) for agent, run_dir in zip(agents, dirs)]
+        with loop.progress_reporter(exp.config.epochs, 0, agents[0].describe) as report:
+            return loop.train(group, group.init(), members, exp.keep_checkpoints, (report,), group.split)
 
 
 def resume_seeds(dirs: list[Path], configs: list[Any], keep_checkpoints: int = 3) -> Any:

@@ -29,11 +29,8 @@ from flax import struct
 
 from mjx_emp import gce
 from mjx_emp.algos.he.config import (
-    GcrlConfig,
     HEConfig,
-    check_gcrl_config,
     keeps_cut_rows,
-    check_train_config,
 )
 from mjx_emp.algos.he.networks import HENetworks
 from mjx_emp.checks import compile_identity
@@ -199,7 +196,6 @@ class HEAgent:
     hierarchy: Hierarchy = dataclasses.field(init=False, compare=False, repr=False)
 
     def __post_init__(self):
-        (check_gcrl_config if isinstance(self.cfg, GcrlConfig) else check_train_config)(self.cfg)
         object.__setattr__(self, "identity", compile_identity(self.cfg))
         env = make_env(self.cfg.env, self.cfg.heading_frame, self.cfg.solver_iterations, self.cfg.integrator,
                        self.cfg.impl)

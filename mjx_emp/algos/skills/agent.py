@@ -24,7 +24,6 @@ from flax import struct
 from mjx_emp.algos.skills import objectives as obj
 from mjx_emp.algos.skills.config import (
     SkillConfig,
-    check_skill_config,
 )
 from mjx_emp.algos.skills.methods import METHODS, ModelContext, ModelInfo, SkillMethod
 from mjx_emp.checks import compile_identity
@@ -119,7 +118,6 @@ class SkillAgent:
     def __post_init__(self):
         if type(self.cfg) not in METHODS:
             raise TypeError(f"cfg: a {type(self.cfg).__name__}; expected one of {[c.__name__ for c in METHODS]}")
-        check_skill_config(self.cfg)
         object.__setattr__(self, "identity", compile_identity(self.cfg))
         object.__setattr__(self, "env", make_env(self.cfg.env, solver_iterations=self.cfg.solver_iterations,
                                                    integrator=self.cfg.integrator, impl=self.cfg.impl))
