@@ -8,10 +8,13 @@ rollout command offers exactly the domains that exist.
 from __future__ import annotations
 
 import dataclasses
+import math
+from pathlib import Path
 from typing import Annotated, Generic, Literal, TypeVar
 
 import tyro
 
+from mjx_emp.checks import LOOP_BOUNDS, check_levels
 from mjx_emp.envs.registry import DOMAIN_NAMES
 from mjx_emp.errors import ConfigError
 from mjx_emp.phase2.config import Phase2Config
@@ -373,3 +376,55 @@ def check_phase2(exp: Phase2Experiment) -> None:
     _check_tracking(exp.tracking)
     if not exp.run_dir:
         raise ConfigError("run_dir: give the phase-1 run directory, e.g. `mjx-emp phase2 runs/pm1`")
+
+
+def check_rollout(exp: RolloutExperiment) -> None:
+    """Refuse a rollout request that cannot describe a k-level agent."""
+    check_levels(exp.n, exp.eps)
+    k = len(exp.n)
+    if len(exp.subgoal_half_width) < k - 1 or any(not v > 0 for v in exp.subgoal_half_width):
+        raise ConfigError(f"subgoal_half_width: needs k-1={k - 1} positive entries; got {exp.subgoal_half_width}")
+    for name in ("batch_size", "steps", "calls"):
+        if getattr(exp, name) < 1:
+            raise ConfigError(f"{name}: must be >= 1; got {getattr(exp, name)}")
+    if not exp.root_goal_half_width > 0:
+        raise ConfigError(f"root_goal_half_width: must be > 0; got {exp.root_goal_half_width}")
+
+
+def check_seed(seed: int) -> None:
+    """An evaluation or render seed JAX can take: the configs' seed bound (:data:`LOOP_BOUNDS`)."""
+    if not 0 <= seed <= LOOP_BOUNDS["seed"]:
+        raise ConfigError(f"seed: must be in [0, 2**63); got {seed}")
+
+
+def check_distinct_runs(run_dirs: tuple[str, ...], command: str) -> None:
+    """At least one run directory, and none given twice: runs are aggregated as seeds, and the
+    same run twice would count as two (``command`` names the CLI command in the message)."""
+    if not run_dirs:
+        raise ConfigError(f"run_dirs: give at least one run directory, e.g. `mjx-emp {command} runs/pm1`")
+    resolved = [Path(d).resolve() for d in run_dirs]
+    twice = sorted({d for d, r in zip(run_dirs, resolved) if resolved.count(r) > 1})
+    if twice:
+        raise ConfigError(f"run_dirs: each run counts once (they are aggregated as seeds); given twice: {twice}")
+
+
+def check_render(exp: RenderExperiment) -> None:
+    """Refuse a render request's numbers before anything loads: frames, frame size, seed, fps, distance."""
+    for name, most in (("steps", MAX_FRAMES), ("width", MAX_FRAME_SIDE), ("height", MAX_FRAME_SIDE)):
+        if not 1 <= getattr(exp, name) <= most:
+            raise ConfigError(f"{name}: must be in [1, {most}]; got {getattr(exp, name)}")
+    check_seed(exp.seed)
+    for name in ("fps", "distance"):
+        if not (math.isfinite(getattr(exp, name)) and getattr(exp, name) > 0):
+            raise ConfigError(f"{name}: must be a finite number > 0; got {getattr(exp, name)}")
+
+
+def check_eval(exp: EvalExperiment) -> None:
+    """Refuse an eval request before anything loads: episodes, seed, coverage draws, and a run
+    given twice (it would count as two seeds)."""
+    if not 1 <= exp.episodes <= MAX_EPISODES:
+        raise ConfigError(f"episodes: must be in [1, {MAX_EPISODES}]; got {exp.episodes}")
+    check_seed(exp.seed)
+    if not 1 <= exp.coverage_draws <= MAX_COVERAGE_DRAWS:
+        raise ConfigError(f"coverage_draws: must be in [1, {MAX_COVERAGE_DRAWS}]; got {exp.coverage_draws}")
+    check_distinct_runs(exp.run_dirs, "eval")

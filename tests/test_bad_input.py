@@ -68,9 +68,9 @@ COMMANDS = {
                numeric_fields(commands.Phase2Experiment, Phase2Config)),
     "export": (["export", "no-run", "--out", "no-export"], commands.check_export,
                numeric_fields(commands.ExportExperiment)),
-    "eval": (["eval", "no-run"], cli.check_eval, numeric_fields(commands.EvalExperiment)),
-    "render": (["render", "no-run"], cli.check_render, numeric_fields(commands.RenderExperiment)),
-    "rollout": (["rollout"], cli.validate_rollout, numeric_fields(commands.RolloutExperiment)),
+    "eval": (["eval", "no-run"], commands.check_eval, numeric_fields(commands.EvalExperiment)),
+    "render": (["render", "no-run"], commands.check_render, numeric_fields(commands.RenderExperiment)),
+    "rollout": (["rollout"], commands.check_rollout, numeric_fields(commands.RolloutExperiment)),
     "sweep": (["sweep", "no-spec.toml"], check_sweep, numeric_fields(commands.SweepExperiment)),
     "report": (["report", "no-spec.toml"], check_report, numeric_fields(commands.ReportExperiment)),
 }

@@ -24,8 +24,11 @@ Plain Python: the CLI lists and checks names before anything imports JAX.
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import re
 from collections.abc import Iterable
+
+from mjx_emp.errors import ConfigError
 
 HE = "he"
 """The algorithm whose names carry no ALGO part."""
@@ -237,3 +240,20 @@ def listing_lines(presets: Iterable[str], tasks: Iterable[str], width: int = 100
         lines += wrap_names((name for name in tasks if _task_group(name) == group), width)
     lines.append("mjx-emp train NAME --help shows a preset's fields; docs/presets.md describes each")
     return lines
+
+
+def close_names(name: str, known: Iterable[str]) -> list[str]:
+    """The known names closest to a misspelt one (at most three)."""
+    return difflib.get_close_matches(name, list(known), n=3, cutoff=0.6)
+
+
+def unknown_preset(name: str, known: Iterable[str], usage: str, retired: dict | None = None) -> ConfigError:
+    """The error for a preset name that does not exist: for a name in ``retired`` (name ->
+    :class:`~mjx_emp.algos.retired.Retired`), the command that gives its config; else the closest names."""
+    if retired and name in retired:
+        return ConfigError(f"preset: {name!r} left the catalogue; its config is "
+                           f"`{usage.replace('PRESET', retired[name].command)}`")
+    known = list(known)
+    closest = close_names(name, known)
+    hint = f"did you mean {', '.join(closest)}? " if closest else ""
+    return ConfigError(f"preset: {name!r} is unknown ({usage}); {hint}`mjx-emp presets` lists all {len(known)}")
