@@ -17,6 +17,8 @@ from mjx_emp.checks import config_from_dict
 from mjx_emp.commands import ExportExperiment, TrainExperiment
 from mjx_emp.errors import ConfigError
 from mjx_emp.run import jobs, store
+from mjx_emp.run.evaluate import evaluation_row
+from mjx_emp.run.sweep import sweep as run_sweep
 
 EPOCH_FIELDS = ("epoch", "env_steps", "epoch_env_steps", "seconds", "env_steps_per_s", "flip_resets",
                 "checkpoint_blocked_s")
@@ -124,14 +126,10 @@ def export(run_dir: str | Path, out: str | Path, epoch: int | None = None) -> Pa
 def evaluate(run_dir: str | Path, seed: int = 0, episodes: int = 400) -> dict:
     """A run's evaluation row, as `mjx-emp eval` and `mjx-emp sweep` write it (figures of phase 1
     and phase 2 from the key ``jax.random.key(seed)``, curves, provenance; docs/sweeps.md)."""
-    from mjx_emp.run.evaluate import evaluation_row
-
     return evaluation_row(Path(run_dir), seed, episodes)
 
 
 def sweep(spec: str | Path, runs: str | Path = "", results: str | Path = "", workers: int = 1) -> list[dict]:
     """Run a sweep spec as `mjx-emp sweep` does (train, resume and evaluate what is not done);
     returns the rows this call appended to the spec's results file."""
-    from mjx_emp.run.sweep import sweep as run_sweep
-
     return run_sweep(str(spec), str(runs), str(results), workers)

@@ -13,18 +13,26 @@ from __future__ import annotations
 
 import math
 import os
+import tomllib
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
+from fnmatch import fnmatchcase
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from matplotlib.figure import Figure
 
 from mjx_emp import tables
 from mjx_emp.algos.retired import flag_text
 from mjx_emp.errors import ConfigError
+from mjx_emp.run.flips import flip_text, pooled
 from mjx_emp.run.provenance import UNKNOWN
+from mjx_emp.run.rows import RESULTS_DIR, read_rows
+from mjx_emp.run.store import output_target, replace_file
+from mjx_emp.run.sweep import check_report_table, load_spec
+from mjx_emp.viz.plots import axes_content, seed_band
 
 DEFAULT_REPS = 2000
 """Bootstrap resamples per interval: a few tenths of a second per metric, and an interval
@@ -398,8 +406,6 @@ def seed_bands(rows: Sequence[dict], curve: str = "top_volume", group_by: str = 
     """Per group (first-appearance order) the mean and sample std over its seeds of ``curve``,
     each seed interpolated onto the steps of the one that ends first
     (:func:`mjx_emp.viz.plots.seed_band`); groups whose rows lack the curve are left out."""
-    from mjx_emp.viz.plots import seed_band
-
     bands = {}
     for name, group in group_rows(rows, group_by).items():
         curves = [c for c in (row_curve(row, curve) for row in group) if c is not None]
@@ -421,11 +427,6 @@ def seed_band_figure(rows: Sequence[dict], curve: str = "top_volume", out: Path 
     band of one sample std, legend ``GROUP (n=K)``. Returns the path and what the axes show
     (read back from them), so a caller or a test can check the chart's content. No group with
     the curve is a ConfigError."""
-    from matplotlib.figure import Figure
-
-    from mjx_emp.run.store import replace_file
-    from mjx_emp.viz.plots import axes_content
-
     bands = seed_bands(rows, curve, group_by)
     if not bands:
         raise ConfigError(f"figure: no row has a {curve!r} curve (with its {curve_steps_key(curve)})")
@@ -500,8 +501,6 @@ def with_block(text: str, name: str, content: str, markdown_file: Path) -> str:
 def write_block(markdown_file: Path | str, name: str, text: str) -> bool:
     """Put ``text`` between block ``name``'s marker lines of ``markdown_file``, atomically;
     True where the file changed (an unchanged block leaves the file untouched)."""
-    from mjx_emp.run.store import replace_file
-
     path = Path(markdown_file)
     old = read_text(path, "block")
     new = with_block(old, name, text, path)
@@ -540,10 +539,6 @@ BENCHMARK_KEYS = ("name", "command", "report")
 def load_report_spec(spec_path: str) -> Any:
     """The spec a report reads: a benchmark spec (a TOML file with a ``command``, see
     :class:`BenchmarkSpec`) or a sweep spec (:func:`mjx_emp.run.sweep.load_spec`)."""
-    import tomllib
-
-    from mjx_emp.run.sweep import check_report_table, load_spec
-
     path = Path(spec_path)
     try:
         raw = tomllib.loads(read_text(path, "spec"))
@@ -564,8 +559,6 @@ def spec_rows(spec: Any, results: Path) -> list[dict]:
     """The stored rows of ``spec``: for a sweep spec in the spec's order of rows, then seeds
     (rows of rows or seeds the spec no longer names are left out); for a benchmark spec every
     row of its name, in the order they were first stored."""
-    from mjx_emp.run.rows import read_rows
-
     mine = [row for row in read_rows(results) if row.get("spec") == spec.name]
     if isinstance(spec, BenchmarkSpec):
         return mine
@@ -577,8 +570,6 @@ def chosen_rows(rows: Sequence[dict], patterns: Sequence[str]) -> list[dict]:
     """The rows whose row name matches one of ``patterns`` (shell-style, ``check/rollout/*``);
     every row where there are none. A spec's ``[report] rows`` names them, so that one store
     of a benchmark's rows can feed several tables."""
-    from fnmatch import fnmatchcase
-
     if not patterns:
         return list(rows)
     return [row for row in rows if any(fnmatchcase(str(row.get("row")), pattern) for pattern in patterns)]
@@ -587,8 +578,6 @@ def chosen_rows(rows: Sequence[dict], patterns: Sequence[str]) -> list[dict]:
 def row_flip_table(rows: Sequence[dict], name: str) -> str:
     """Row ``name``'s flip tables pooled over its runs (:func:`mjx_emp.run.flips.pooled`), as
     `mjx-emp eval` prints them; a row without one is a ConfigError naming the rows that have one."""
-    from mjx_emp.run.flips import flip_text, pooled
-
     held = [row for row in rows if row["row"] == name and (row.get("figures") or {}).get("flip_table")]
     if not held:
         having = sorted({row["row"] for row in rows if (row.get("figures") or {}).get("flip_table")})
@@ -619,9 +608,6 @@ def report_spec(spec_path: str, results: str = "", metrics: Sequence[str] = (), 
     Markdown file (``write`` False: the text only, as a check of a committed block makes it). The
     spec's ``[report]`` table may name ``metrics`` and ``baseline``. With ``flip_table`` (a row
     name) the text is that row's flip table pooled over its runs instead of the table."""
-    from mjx_emp.run.rows import RESULTS_DIR
-    from mjx_emp.run.store import output_target
-
     if reps < 1:
         raise ConfigError(f"reps: must be >= 1; got {reps}")
     for path, field in ((into, "into"), (figure, "figure")):

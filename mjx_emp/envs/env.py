@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import importlib.util
 from pathlib import Path
 
 import jax
@@ -378,8 +379,6 @@ def check_backend(impl: str) -> None:
     field, where either is missing (the jax backend runs anywhere)."""
     if impl != "warp":
         return
-    import importlib.util
-
     if importlib.util.find_spec("mujoco_warp") is None:
         raise ConfigError("impl: warp needs the mujoco-warp package (pip install \"mujoco-mjx[warp]\"); "
                           "allowed here: jax")

@@ -18,12 +18,20 @@ import numpy as np
 
 from mjx_emp.algos.registry import GOAL_SPACES, algorithm_of
 from mjx_emp.errors import CheckpointError, ConfigError
-from mjx_emp.metrics import coverage_cells
+from mjx_emp.metrics import (
+    LEVEL_FIGURES,
+    aggregate_agent,
+    aggregate_phase2,
+    aggregate_runs,
+    coverage_cells,
+    mean_and_stderr,
+)
 from mjx_emp.phase2.config import Phase2Config
 from mjx_emp.run import jobs, store
 from mjx_emp.run.flips import flip_text, phase1_flips, phase2_flips, pooled
 from mjx_emp.run.provenance import provenance
 from mjx_emp.run.rows import ROW_SCHEMA
+from mjx_emp.tables import spread_text
 
 COVERAGE_SKILLS = 48
 """Skills per coverage count, as in METRA's Ant figures."""
@@ -223,8 +231,6 @@ def evaluate_runs(run_dirs: list[Path], seed: int = 0, episodes: int = 400, comm
     sample std, standard error): per level and for the agent (goal-space algorithms) or coverage
     and posterior std (flat skill learners), and phase 2 where runs have one. Runs of one
     algorithm at a time (they are aggregated)."""
-    from mjx_emp.metrics import aggregate_phase2
-
     algorithms = {algorithm.name: algorithm
                   for algorithm in (algorithm_of(store.read_run_config(Path(d), "run_dirs")) for d in run_dirs)}
     if len(algorithms) > 1:
@@ -255,14 +261,10 @@ def pooled_flip_tables(rows: list[dict]) -> dict | None:
 
 
 def _aggregate_goal_space_runs(runs: list[dict]) -> dict:
-    from mjx_emp.metrics import aggregate_agent, aggregate_runs
-
     return {"levels": aggregate_runs(runs), **aggregate_agent(runs)}
 
 
 def _aggregate_skill_runs(runs: list[dict]) -> dict:
-    from mjx_emp.metrics import mean_and_stderr
-
     report = {"coverage_cells": mean_and_stderr([r["coverage_cells"] for r in runs])}
     stds = [r["posterior_std"] for r in runs if r["posterior_std"] is not None]
     if stds:
@@ -279,9 +281,6 @@ PHASE2_POLICIES = (("aimed", "subgoals aimed straight at each goal"),
 def evaluation_text(report: dict) -> str:
     """:func:`evaluate_runs`'s report as `mjx-emp eval` prints it: the per-level table or the
     coverage line, then phase 2's figures and the scripted policies' on the same goals."""
-    from mjx_emp.metrics import LEVEL_FIGURES
-    from mjx_emp.tables import spread_text
-
     rows = report["runs"]
     lines = [f"{len(rows)} run(s)" + ("" if len(rows) == 1 else "; mean ± sample std (se: standard error) over runs")]
     if "levels" in report:

@@ -11,6 +11,10 @@ from __future__ import annotations
 import os
 from typing import Any
 
+import jax
+import jax.numpy as jnp
+from jax.experimental import multihost_utils
+
 from mjx_emp.errors import ConfigError
 
 COORDINATOR_ENV, PROCESSES_ENV, PROCESS_ID_ENV = "JAX_COORDINATOR_ADDRESS", "JAX_NUM_PROCESSES", "JAX_PROCESS_ID"
@@ -35,8 +39,6 @@ def join_hosts(coordinator_address: str = "", num_processes: int = 0, process_id
         raise ConfigError(f"num_processes: give the number of processes (>= 1) with a coordinator; got {count}")
     if not 0 <= index < count:
         raise ConfigError(f"process_id: must be in [0, {count}); got {index}")
-    import jax
-
     if timeout_s < 1:
         raise ConfigError(f"join_timeout: must be >= 1 second; got {timeout_s}")
     jax.config.update("jax_cpu_collectives_implementation", "gloo")  # CPU devices of several processes
@@ -54,31 +56,22 @@ def join_hosts(coordinator_address: str = "", num_processes: int = 0, process_id
 
 def several_hosts() -> bool:
     """Whether this program runs over several processes."""
-    import jax
-
     return jax.process_count() > 1
 
 
 def is_lead() -> bool:
     """Whether this process writes the run directory (process 0, or the only one)."""
-    import jax
-
     return jax.process_index() == 0
 
 
 def wait_for_all(name: str) -> None:
     """A barrier across the processes (nothing with one)."""
     if several_hosts():
-        from jax.experimental import multihost_utils
-
         multihost_utils.sync_global_devices(name)
 
 
 def _keys_as_data(move, tree: Any) -> Any:
     """``move`` applied to ``tree`` with its PRNG keys as raw key data, the keys wrapped back after."""
-    import jax
-    import jax.numpy as jnp
-
     def is_key(x):
         return jnp.issubdtype(x.dtype, jax.dtypes.prng_key)
 
@@ -92,16 +85,12 @@ def gather_to_host(tree: Any) -> Any:
     keys. With one process, ``tree`` itself. Every process must call it."""
     if not several_hosts():
         return tree
-    from jax.experimental import multihost_utils
-
     return _keys_as_data(lambda data: multihost_utils.process_allgather(data, tiled=True), tree)
 
 
 def place_on(tree: Any, sharding: Any) -> Any:
     """``tree`` (its whole value, the same on every process) on ``sharding``, which may span the
     devices of several processes: each keeps the shards on its own devices."""
-    import jax
-
     if not several_hosts():
         return jax.device_put(tree, sharding)
     return _keys_as_data(lambda data: jax.device_put(jax.device_get(data), sharding), tree)

@@ -8,9 +8,12 @@ from __future__ import annotations
 import dataclasses
 import functools
 import json
+import shutil
 import sys
 from collections.abc import Callable
 from pathlib import Path
+
+import jax
 
 from mjx_emp.algos.registry import (
     algorithm_of,
@@ -29,10 +32,16 @@ from mjx_emp.commands import (
     resumed_stops,
 )
 from mjx_emp.errors import ConfigError, RenderError
+from mjx_emp.phase2.build import make_phase2_trainer
 from mjx_emp.phase2.config import Phase2Config
 from mjx_emp.run import loop
+from mjx_emp.run.checkpoint import Checkpoints
+from mjx_emp.run.devices import ShardedAgent, choose_devices, shard_slice
+from mjx_emp.run.hosts import is_lead, join_hosts, wait_for_all
 from mjx_emp.run.loop import Member, env_steps_of, epoch_of, progress_reporter
+from mjx_emp.run.preflight import preflight
 from mjx_emp.run.provenance import EXPORT_OF
+from mjx_emp.run.seeds import resume_seeds, seed_group_of, train_seeds
 from mjx_emp.run.store import (
     CONFIG_FILE,
     METRICS_FILE,
@@ -70,8 +79,6 @@ def _train_run(program, state, run_dir: Path, keep_checkpoints: int, tracking: T
 def _film_for_trackers(trackers: Trackers, film: Film, trainer, state, run_dir: Path, steps: int) -> None:
     """Hand the trackers a video of the trained run (the lead process films); without offscreen
     GL the run still ends as trained, with a note on stderr."""
-    from mjx_emp.run.hosts import is_lead
-
     if not is_lead():
         return
     print(f"filming {steps} steps of the trained run for the trackers ...", flush=True)
@@ -90,8 +97,6 @@ def training_program(cfg, num_devices: int = 0):
     many as divide the shards)."""
     if cfg.shards == 1 and num_devices <= 1:
         return make_agent(cfg)
-    from mjx_emp.run.devices import ShardedAgent, choose_devices
-
     return ShardedAgent(cfg, choose_devices(cfg.shards, num_devices))
 
 
@@ -102,8 +107,6 @@ def split_for_devices(cfg, num_devices: int):
     if cfg.shards > 1:
         return cfg
     if num_devices == 0:
-        import jax
-
         num_devices = jax.device_count()  # every device of every process
     return dataclasses.replace(cfg, shards=num_devices) if num_devices > 1 else cfg
 
@@ -115,8 +118,6 @@ def train(exp: TrainExperiment, on_epoch: Callable[[dict], None] | None = None, 
     returns the final state. ``on_epoch`` (one run, not a seed group) sees each epoch's metrics;
     ``film`` makes the video the trackers get at the end (no video without it); ``record`` (how the
     run was asked for, :func:`mjx_emp.run.provenance.run_record`) is kept in each run directory."""
-    from mjx_emp.run.hosts import is_lead, join_hosts, wait_for_all
-
     check_train(exp)
     several = join_hosts(exp.coordinator_address, exp.num_processes, exp.process_id, exp.join_timeout)
     if exp.seeds:
@@ -124,8 +125,6 @@ def train(exp: TrainExperiment, on_epoch: Callable[[dict], None] | None = None, 
             raise ConfigError("seeds: a seed group trains in one process; drop --seeds or the coordinator")
         if on_epoch is not None:
             raise ConfigError("seeds: a progress callback follows one run; train the seeds one by one")
-        from mjx_emp.run.seeds import train_seeds
-
         return train_seeds(exp, record)
     cfg = split_for_devices(exp.config, exp.num_devices)
     if several and not exp.run_dir:
@@ -147,8 +146,6 @@ def train(exp: TrainExperiment, on_epoch: Callable[[dict], None] | None = None, 
 
 def check_memory(program) -> None:
     """The memory preflight (:mod:`mjx_emp.run.preflight`) of what trains a run, before it allocates."""
-    from mjx_emp.run.preflight import preflight
-
     agent = getattr(program, "alone", program)  # a split run: one shard's agent sees the environment
     preflight(program, program.cfg, agent.env, getattr(program, "num_devices", 1))
 
@@ -159,8 +156,6 @@ def _restore(run_dir: Path, trainer, template, fallback: bool = False, epoch: in
 
     Only the run's ``writer`` (a resume, holding the run's lock) may change the checkpoint folder
     (set aside unusable newer checkpoints, remove half-written ones); any other caller reads."""
-    from mjx_emp.run.checkpoint import Checkpoints
-
     with Checkpoints(run_dir, read_only=not writer) as checkpoints:
         epochs = checkpoints.epochs()
         left_out = checkpoints.left_out(epochs[-1]) if writer and epochs else []
@@ -187,12 +182,8 @@ def load_run(run_dir: Path, fallback: bool = False, stops: dict | None = None, f
     ``stops`` replaces the run's loop fields (epochs, step budget); ``field`` is the CLI field
     that errors about ``run_dir`` name.
     """
-    import jax
-
     cfg = _with_stops(read_run_config(Path(run_dir), field), stops)
     if cfg.shards > 1:  # a split run: shard 0's state (its networks are every shard's) and agent
-        from mjx_emp.run.devices import ShardedAgent, shard_slice
-
         program = ShardedAgent(cfg, 1)
         epoch, state = _restore(Path(run_dir), program, jax.eval_shape(program.init), fallback, epoch,
                                 epoch_field=epoch_field)
@@ -205,10 +196,6 @@ def load_run(run_dir: Path, fallback: bool = False, stops: dict | None = None, f
 
 def export_skills(exp: ExportExperiment) -> tuple[Path, int]:
     """Write RUN_DIR's skills (see :class:`ExportExperiment`) to OUT; returns OUT and the epoch exported."""
-    import shutil
-
-    from mjx_emp.run.checkpoint import Checkpoints
-
     check_export(exp)
     if (Path(exp.run_dir) / SKILLS_FILE).exists():
         raise ConfigError(f"run_dir: {exp.run_dir} is a phase-2 directory; export the phase-1 run it was trained on")
@@ -230,8 +217,6 @@ def load_program(run_dir: Path, fallback: bool = False, stops: dict | None = Non
                  num_devices: int = 0):
     """What trains a run on (see :func:`training_program`) and its newest good checkpoint,
     placed on the program's devices: ``(program, epoch, state)``. For the run's writer (a resume)."""
-    import jax
-
     program = training_program(_with_stops(read_run_config(Path(run_dir), field), stops), num_devices)
     epoch, state = _restore(Path(run_dir), program, jax.eval_shape(program.init), fallback, writer=True)
     return program, epoch, (program.place(state) if hasattr(program, "place") else state)
@@ -277,8 +262,6 @@ def resume(exp: ResumeExperiment, film: Film | None = None):
         exp = dataclasses.replace(exp, resume=str(phase2_dir))
     if (Path(exp.resume) / SKILLS_FILE).exists():
         return resume_phase2(exp, film)
-    from mjx_emp.run.seeds import seed_group_of
-
     group = seed_group_of(Path(exp.resume))
     if exp.group:
         return _resume_group(exp, group)
@@ -291,8 +274,6 @@ def resume(exp: ResumeExperiment, film: Film | None = None):
 
 def _resume_group(exp: ResumeExperiment, group: list[Path]):
     """``exp`` for every run of a seed group, as one program (:func:`mjx_emp.run.seeds.resume_seeds`)."""
-    from mjx_emp.run.seeds import resume_seeds
-
     check_resume(exp)
     if len(group) < 2:
         raise ConfigError(f"group: {exp.resume} was trained alone, not in a seed group; resume it without --group")
@@ -322,8 +303,6 @@ def train_phase2(exp: Phase2Experiment, film: Film | None = None, record: dict |
     """Train phase 2 on a phase-1 run's skills in a new phase-2 directory; returns the final state.
     ``record`` (how it was asked for) is kept in the directory, as :func:`train` keeps it."""
     check_phase2(exp)
-    from mjx_emp.phase2.build import make_phase2_trainer
-
     requested = None if exp.config.phase1_epoch < 0 else exp.config.phase1_epoch
     skills, epoch, skills_state = load_run(Path(exp.run_dir), field="run_dir", epoch=requested)
     cfg = dataclasses.replace(exp.config, phase1_epoch=epoch)
@@ -345,10 +324,6 @@ def load_phase2(phase2_dir: Path, fallback: bool = False, stops: dict | None = N
     The directory stands on its own: it holds the phase-1 config and the frozen skills.
     ``writer``: the caller holds the directory's lock to continue it (see :func:`_restore`).
     """
-    import jax
-
-    from mjx_emp.phase2.build import make_phase2_trainer
-
     phase2_dir = Path(phase2_dir)
     cfg = _with_stops(read_run_config(phase2_dir, field, Phase2Config), stops)
     trainer = make_phase2_trainer(make_agent(read_run_config(phase2_dir, field, file=SKILLS_FILE)), cfg)

@@ -18,7 +18,22 @@ from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
+import jax
+import numpy as np
+from rich.console import Console
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    TextColumn,
+    TimeRemainingColumn,
+)
+from rich.table import Column
+
+from mjx_emp.counters import StepCounter
 from mjx_emp.errors import Interrupted, TrainingDiverged
+from mjx_emp.run.checkpoint import Checkpoints
+from mjx_emp.run.hosts import gather_to_host, is_lead
 from mjx_emp.run.store import METRICS_FILE, writing
 
 
@@ -31,16 +46,6 @@ def progress_reporter(total_epochs: int, first_epoch: int, describe: Callable[[d
     (80 columns) the summary wraps under the bar instead of being cut. ``console``: rich's
     console to draw on (default: standard output).
     """
-    from rich.console import Console
-    from rich.progress import (
-        BarColumn,
-        MofNCompleteColumn,
-        Progress,
-        TextColumn,
-        TimeRemainingColumn,
-    )
-    from rich.table import Column
-
     console = console or Console()
     if not console.is_terminal:
         yield lambda metrics: print(f"epoch {metrics['epoch']:4d}  {describe(metrics)}", flush=True)
@@ -68,8 +73,6 @@ def _alone(state, stats) -> list[tuple[Any, Any]]:
 def _first(array) -> int:
     """A per-run scalar of a train state as a Python integer: shard 0's where a split run holds
     it once per shard, maybe on several hosts."""
-    import numpy as np
-
     if not getattr(array, "is_fully_addressable", True):
         array = array.addressable_shards[0].data
     return int(np.asarray(array).reshape(-1)[0])
@@ -82,8 +85,6 @@ def epoch_of(state) -> int:
 
 def env_steps_of(state) -> int:
     """A train state's environment steps so far (shard 0 of a split run holds the whole run's)."""
-    from mjx_emp.counters import StepCounter
-
     return StepCounter(hi=_first(state.env_steps.hi), lo=_first(state.env_steps.lo)).value()
 
 
@@ -112,11 +113,6 @@ def train(program, state, members: list[Member], keep_checkpoints: int = 3,
     any member; SIGINT and SIGTERM raise Interrupted once the epoch being written is complete.
     ``seconds`` in a member's metrics is the wall time of the whole program's epoch.
     """
-    import jax
-
-    from mjx_emp.run.checkpoint import Checkpoints
-    from mjx_emp.run.hosts import gather_to_host, is_lead
-
     report = [call for call in on_epoch if call is not None]
     epochs = members[0].trainer.cfg.epochs
     budgets = [member.trainer.cfg.max_env_steps for member in members]

@@ -7,6 +7,7 @@ known is recorded as :data:`UNKNOWN`, never guessed.
 
 from __future__ import annotations
 
+import dataclasses
 import importlib.metadata
 import json
 import os
@@ -100,8 +101,6 @@ def run_record(preset: str | None, overrides: dict[str, Any], command: str | Non
 def overrides_of(base: Any, cfg: Any) -> dict[str, Any]:
     """The fields of config ``cfg`` that differ from ``base`` (its preset's), JSON-ready: what
     `mjx-emp train PRESET --FIELD VALUE` was given beyond the preset."""
-    import dataclasses
-
     if type(base) is not type(cfg):
         return {}
     theirs, ours = dataclasses.asdict(base), dataclasses.asdict(cfg)

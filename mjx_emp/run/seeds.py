@@ -21,6 +21,7 @@ import jax.numpy as jnp
 from mjx_emp.algos.registry import make_agent
 from mjx_emp.commands import TrainExperiment
 from mjx_emp.run import loop, store
+from mjx_emp.run.checkpoint import Checkpoints
 from mjx_emp.run.provenance import run_record
 
 
@@ -113,8 +114,6 @@ def resume_seeds(dirs: list[Path], configs: list[Any], keep_checkpoints: int = 3
 def _restore_common_epoch(members: list[loop.Member]) -> tuple[int, list[Any]]:
     """The newest epoch every member has a checkpoint of, and each member's state of it; a
     member's newer checkpoints are set aside and its metrics cut back to that epoch."""
-    from mjx_emp.run.checkpoint import Checkpoints
-
     with contextlib.ExitStack() as stack:
         kept = [stack.enter_context(Checkpoints(member.run_dir)) for member in members]
         epoch = min(checkpoints.epochs()[-1] for checkpoints in kept)

@@ -11,8 +11,10 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import errno
+import fcntl
 import json
 import os
+import socket
 import stat
 import sys
 import tempfile
@@ -294,10 +296,7 @@ def run_lock(run_dir: Path, field: str) -> Iterator[None]:
     2) is refused with a ConfigError naming the process that holds it. The lock is the
     kernel's (``flock``), so it goes with its process however that ends; a lock file left by a
     killed process is taken over with a note. With several hosts only the lead locks."""
-    import fcntl
-    import socket
-
-    from mjx_emp.run.hosts import is_lead
+    from mjx_emp.run.hosts import is_lead  # deferred: hosts imports JAX, and the CLI reads run files without it
 
     if not is_lead():
         yield

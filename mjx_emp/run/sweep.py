@@ -38,11 +38,17 @@ path without a cluster.
 
 from __future__ import annotations
 
+import concurrent.futures
+import ctypes
 import dataclasses
+import difflib
 import functools
 import json
+import multiprocessing
 import os
 import shlex
+import shutil
+import signal
 import sys
 import time
 import tomllib
@@ -50,14 +56,24 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
+import jax
+
 from mjx_emp.algos.registry import algorithm_of, all_presets
-from mjx_emp.checks import config_from_dict
-from mjx_emp.commands import MAX_COVERAGE_DRAWS
+from mjx_emp.checks import compile_identity, config_from_dict
+from mjx_emp.commands import (
+    MAX_COVERAGE_DRAWS,
+    Phase2Experiment,
+    ResumeExperiment,
+    TrainExperiment,
+)
 from mjx_emp.errors import ConfigError, JobFailed
 from mjx_emp.phase2.config import Phase2Config, check_phase2_config
 from mjx_emp.phase2.presets import PHASE2_PRESETS, phase2_preset_for
-from mjx_emp.run import store
+from mjx_emp.run import jobs, store
+from mjx_emp.run.evaluate import evaluation_row
+from mjx_emp.run.provenance import run_record
 from mjx_emp.run.rows import RESULTS_DIR, append_row, read_rows
+from mjx_emp.run.seeds import resume_seeds
 
 SPEC_KEYS = ("name", "eval_seed", "eval_seed_per_run", "coverage_draws", "episodes", "runs", "slurm", "report", "row")
 ROW_KEYS = ("name", "preset", "seeds", "overrides", "max_env_steps", "phase2", "phase2_overrides", "episodes",
@@ -180,8 +196,6 @@ def check_row(raw: Any, index: int, default_episodes: int, earlier: dict[str, Ro
     presets = all_presets()
     preset = raw.get("preset")
     if preset not in presets:
-        import difflib
-
         close = difflib.get_close_matches(str(preset), list(presets), n=3, cutoff=0.6)
         hint = f" (did you mean {', '.join(close)}?)" if close else ""
         raise _fail(where, f"preset: {preset!r} is not a preset{hint}; `mjx-emp presets` lists them")
@@ -388,8 +402,6 @@ def _same_config(run_dir: Path, cfg: Any, where: str) -> None:
     more than when it stops): its runs would not be the row's."""
     if not (run_dir / store.CONFIG_FILE).exists():
         return
-    from mjx_emp.checks import compile_identity
-
     held = store.read_run_config(run_dir, "run_dir")
     if type(held) is not type(cfg) or compile_identity(held) != compile_identity(cfg):
         raise ConfigError(f"{where}: {run_dir} holds a run of another config than the row asks for; move it away "
@@ -404,12 +416,6 @@ def _budget(row: Row) -> dict[str, Any]:
 def train_row(job: Job) -> list[str]:
     """Phase 1 of every seed of the job's row: new seeds train as one vmapped program, an
     interrupted group resumes as one, a finished run is left alone. Returns what was done."""
-    import jax  # noqa: F401 (loaded before the runs' provenance is taken, so it names the device)
-
-    from mjx_emp.commands import ResumeExperiment, TrainExperiment
-    from mjx_emp.run import jobs
-    from mjx_emp.run.provenance import run_record
-
     row = job.row
     dirs = [Path(d) for d in job.run_dirs]
     configs = [seed_config(row, seed) for seed in row.seeds]
@@ -426,8 +432,6 @@ def train_row(job: Job) -> list[str]:
         jobs.train(TrainExperiment(config=row.config, run_dir=job.base, seeds=row.seeds), record=record)
         return [f"trained seeds {', '.join(map(str, row.seeds))} as one program"]
     if row.group_seeds and len(started) == len(dirs):
-        from mjx_emp.run.seeds import resume_seeds
-
         resume_seeds(dirs, configs)
         return [f"resumed seeds {', '.join(map(str, row.seeds))} as one program"]
     done = []
@@ -446,8 +450,6 @@ def copy_skills(job: Job, dirs: list[Path], configs: list[Any]) -> list[str]:
     """A ``skills_from`` row's phase 1: each seed's finished run of the source row copied (less
     its phase 2), so that this row's phase 2 has a run directory of its own. A source run not
     finished yet is refused: its row's job trains it, and a later call copies it."""
-    import shutil
-
     done = []
     for seed, run_dir, cfg in zip(job.row.seeds, dirs, configs):
         if (run_dir / store.CONFIG_FILE).exists():
@@ -473,12 +475,6 @@ def copy_skills(job: Job, dirs: list[Path], configs: list[Any]) -> list[str]:
 def phase2_row(job: Job) -> list[str]:
     """Phase 2 of every seed of the job's row (none without a phase-2 preset): trained, resumed
     or left alone when finished."""
-    import jax
-
-    from mjx_emp.commands import Phase2Experiment, ResumeExperiment
-    from mjx_emp.run import jobs
-    from mjx_emp.run.provenance import run_record
-
     row = job.row
     if row.phase2 is None:
         return []
@@ -509,10 +505,6 @@ def run_job(job: Job) -> list[dict]:
     Its output goes to the job's log file."""
     with _output_to(Path(job.log)):
         print(f"== {time.strftime('%Y-%m-%d %H:%M:%S')} row {job.row.name} of {job.spec}", flush=True)
-        import jax
-
-        from mjx_emp.run.evaluate import evaluation_row
-
         done = train_row(job)
         jax.clear_caches()  # each step compiles its own programs; memory mappings are finite (vm.max_map_count)
         done += phase2_row(job)
@@ -557,9 +549,6 @@ def _die_with_parent() -> None:
     """A local worker dies with the sweep that started it (Linux), so that a killed sweep leaves
     no orphan training behind the run locks of the next call."""
     try:
-        import ctypes
-        import signal
-
         ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
     except (OSError, AttributeError):
         pass
@@ -625,9 +614,6 @@ def _executor(kind: str, workers: int, folder: Path, slurm: dict[str, Any]):
     """The executor that runs jobs: local worker processes, or submitit (Slurm, or its local
     executor) writing its files under ``folder``."""
     if kind == "local":
-        import concurrent.futures
-        import multiprocessing
-
         return concurrent.futures.ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context(
             "spawn"), initializer=_die_with_parent)
     try:
@@ -699,8 +685,6 @@ def next_done(running: dict, executor: str) -> Any:
     """Wait for one of the ``running`` futures (concurrent.futures' or submitit's jobs) to end;
     return it."""
     if executor == "local":
-        import concurrent.futures
-
         done, _ = concurrent.futures.wait(running, return_when=concurrent.futures.FIRST_COMPLETED)
         return next(future for future in running if future in done)  # the first submitted of those done
     while True:

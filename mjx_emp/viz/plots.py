@@ -8,10 +8,19 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+import jax
+import matplotlib
 import numpy as np
+from matplotlib.colors import to_hex
+from matplotlib.figure import Figure
+from matplotlib.patches import Rectangle
 
 from mjx_emp.algos.registry import GOAL_SPACES, LATENT_SKILLS, algorithm_of
 from mjx_emp.envs.registry import DOMAINS
+from mjx_emp.errors import ConfigError
+from mjx_emp.metrics import coverage_cells
+from mjx_emp.phase2.config import Phase2Config
+from mjx_emp.run.jobs import load_run
 from mjx_emp.run.store import (
     CHECKPOINT_SUBDIR,
     CONFIG_FILE,
@@ -22,11 +31,10 @@ from mjx_emp.run.store import (
     replace_file,
     run_skill_kind,
 )
+from mjx_emp.viz.render import first_skills, record_rollout
 
 
 def pyplot():
-    import matplotlib
-
     matplotlib.use("Agg")  # files only; no display needed
     import matplotlib.pyplot as plt
 
@@ -91,8 +99,6 @@ def colour_of(label: str, taken: list[str]) -> str:
     """``label``'s colour: its fixed one, else the first colour of the cycle not ``taken``."""
     if label in METHOD_COLOURS:
         return METHOD_COLOURS[label]
-    from matplotlib.colors import to_hex
-
     used = {to_hex(c) for c in taken}  # the cycle may hold RGB tuples where METHOD_COLOURS holds hex
     spare = [to_hex(c) for c in pyplot().rcParams["axes.prop_cycle"].by_key()["color"] if to_hex(c) not in used]
     return spare[0] if spare else "black"
@@ -165,8 +171,6 @@ def plot_goal_space_growth(metrics: list[dict], path: Path, unit: str = "", titl
 def goal_space_growth_figure(metrics: list[dict], unit: str = "", title: str = ""):
     """The figure :func:`plot_goal_space_growth` saves, drawn without saving it (a matplotlib
     Figure outside pyplot's figure registry; :func:`axes_content` reads back what it shows)."""
-    from matplotlib.figure import Figure
-
     if not metrics:
         raise ValueError("no epochs to plot: metrics is empty")
     steps = _steps(metrics)
@@ -241,8 +245,6 @@ def draw_skills(ax, start: list[float], boxes: list[dict], trajectories: list, g
     each level's goal-space box around h(s0), the trajectories of h(s), each skill's goal and
     h(s0). ``boxes`` are ``goal_spaces`` entries (shift and half_width relative to h(s0)), none
     for a flat skill learner. 1-D goal spaces are drawn on the x axis, time running upward."""
-    from matplotlib.patches import Rectangle
-
     two_d = len(start) >= 2
     points = [np.asarray(t, float).reshape(-1, len(start)) for t in trajectories]
     visited = np.unique(np.floor(np.concatenate(points) / cell), axis=0) if points and len(np.concatenate(points)) else []
@@ -302,11 +304,6 @@ def plot_run(run_dir: Path, chains: int = 8, skills_per_chain: int = 1) -> list[
     top-level skills from the initial state, their goals marked. With a phase-2 directory
     (RUN_DIR/phase2), also its learning curves.
     """
-    import jax
-
-    from mjx_emp.run.jobs import load_run
-    from mjx_emp.viz.render import first_skills, record_rollout
-
     run_dir = Path(run_dir)
     name, unit = run_name(run_dir)
     paths = [plot_goal_space_growth(read_metrics(run_dir), run_dir / "plots" / "goal_space_growth.png", unit,
@@ -350,8 +347,6 @@ def _skill_goals(recording) -> list[np.ndarray]:
 
 def _phase2_plot(run_dir: Path) -> list[Path]:
     """RUN_DIR/phase2's learning curves as RUN_DIR/plots/phase2_curves.png, if it has any."""
-    from mjx_emp.phase2.config import Phase2Config
-
     phase2_dir = run_dir / PHASE2_SUBDIR
     phase2_metrics = read_metrics(phase2_dir) if (phase2_dir / METRICS_FILE).exists() else []
     if not phase2_metrics:
@@ -368,11 +363,6 @@ def plot_skill_run(run_dir: Path, skills: int = 48) -> list[Path]:
     checkpoint on shared axes, the visited cells shaded and counted; phase 2's curves where
     RUN_DIR/phase2 exists.
     """
-    import jax
-
-    from mjx_emp.metrics import coverage_cells
-    from mjx_emp.run.jobs import load_run
-
     run_dir = Path(run_dir)
     paths = [plot_skill_learning(read_metrics(run_dir), run_dir / "plots" / "skill_learning.png")]
     paths += _phase2_plot(run_dir)
@@ -403,9 +393,6 @@ def plot_runs(run_dirs: list[Path], out: Path) -> list[Path]:
     (goal-space algorithms: the top box at s0 and its greedy success; flat skill learners: skill
     displacement and intrinsic reward) and, where runs have phase 2, ``phase2_curves.png``; each
     method (:func:`method_label`) as the mean over its seeds with a one-std band, against env steps."""
-    from mjx_emp.errors import ConfigError
-    from mjx_emp.phase2.config import Phase2Config
-
     configs = [read_run_config(Path(d), "run_dirs") for d in run_dirs]
     envs = sorted({cfg.env for cfg in configs})
     kinds = sorted({run_skill_kind(Path(d)) for d in run_dirs})

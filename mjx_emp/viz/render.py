@@ -6,22 +6,29 @@ executed by the levels below without exploration noise. Or, after phase 2, the p
 policy reaches goals from its region, and the goal is drawn as one more level's marker.
 Every primitive step becomes a frame, with each level's current subgoal drawn as a
 coloured sphere (level 0 yellow, then green, blue, magenta). A flat skill learner
-(no goals to draw) runs its greedy skills from the prior one after another. Rendering uses MuJoCo's offscreen renderer, headless via EGL.
+(no goals to draw) runs its greedy skills from the prior one after another. Rendering uses
+MuJoCo's offscreen renderer, headless via EGL: importing this module imports MuJoCo, so the
+OpenGL backend is chosen first (:mod:`mjx_emp.viz.gl`, which the command line calls).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import io
 from pathlib import Path
-from typing import TYPE_CHECKING
 
+import imageio_ffmpeg
+import jax
+import mujoco
 import numpy as np
+from PIL import Image
 
 from mjx_emp.algos.registry import GOAL_SPACES, skill_kind
+from mjx_emp.commands import RenderExperiment
 from mjx_emp.errors import ConfigError, RenderError
-
-if TYPE_CHECKING:  # importing the rollout imports mujoco, which must wait for configure_headless_gl
-    from mjx_emp.rollout.hierarchy import RolloutPlan
+from mjx_emp.rollout.hierarchy import RolloutPlan, jit_init_rollout, jit_rollout
+from mjx_emp.run.store import SKILLS_FILE, replace_file
+from mjx_emp.run.tracking import Video
 
 LEVEL_COLOURS = ((1.0, 0.8, 0.0, 0.9), (0.1, 0.75, 0.2, 0.9), (0.15, 0.35, 0.95, 0.9), (0.85, 0.1, 0.85, 0.9))
 HEADLESS_HELP = (
@@ -48,10 +55,6 @@ def record_rollout(plan: RolloutPlan, key, steps: int) -> Recording:
 
     Records joint positions, mocap bodies and the goals of the plan's shown levels.
     """
-    import jax
-
-    from mjx_emp.rollout.hierarchy import jit_init_rollout, jit_rollout
-
     hierarchy, params, start, start_params = plan.hierarchy, plan.params, plan.start, plan.start_params
     rollout_state = jit_init_rollout(hierarchy, params, start, start_params, key, 1, plan.root)
     qpos, mocap, goals = [], [], []
@@ -120,8 +123,6 @@ def marker_position_all(goals: np.ndarray, height: float = 0.0) -> np.ndarray:
 
 
 def _add_geom(scene, geom_type, size, pos, rgba) -> None:
-    import mujoco
-
     if scene.ngeom >= scene.maxgeom:
         return
     mujoco.mjv_initGeom(scene.geoms[scene.ngeom], type=geom_type, size=np.asarray(size, float),
@@ -131,8 +132,6 @@ def _add_geom(scene, geom_type, size, pos, rgba) -> None:
 
 def _draw_box_outline(scene, box: np.ndarray) -> None:
     """The top goal-space box as four thin bars on the floor (an interval on the x axis in 1-D)."""
-    import mujoco
-
     low, high = marker_position(box[0], 0.01), marker_position(box[1], 0.01)
     if box.shape[1] < 2:
         low[1], high[1] = -0.5, 0.5
@@ -153,8 +152,6 @@ def render_frames(env, recording: Recording, width: int, height: int, camera_mod
     """RGB frames [T, height, width, 3]: every level's current subgoal as a sphere in its fixed
     colour, a fading trail of h(s) and the top goal-space box on the floor. The ``fixed`` camera
     keeps the whole recording in view; ``follow`` tracks the torso at ``distance``."""
-    import mujoco
-
     try:
         renderer = mujoco.Renderer(env.mj_model, height, width)
     except Exception as err:  # the GL backends raise various types when no context can be made
@@ -214,15 +211,11 @@ def write_video(frames: np.ndarray, path: Path, fps: float) -> Path:
     path = Path(path)
     check_video(path, frames.shape[2], frames.shape[1])
     suffix = path.suffix.lower()
-    from mjx_emp.run.store import replace_file
-
     write = _write_mp4 if suffix == ".mp4" else _write_gif
     return replace_file(path, lambda temporary: write(frames, temporary, fps), chosen=True)
 
 
 def _write_mp4(frames: np.ndarray, path: Path, fps: float) -> None:
-    import imageio_ffmpeg
-
     height, width = frames.shape[1:3]
     writer = imageio_ffmpeg.write_frames(str(path), (width, height), fps=fps, quality=8, macro_block_size=2,
                                          ffmpeg_log_level="error")
@@ -241,10 +234,6 @@ def _write_gif(frames: np.ndarray, path: Path, fps: float) -> None:
 def gif_bytes(frames: np.ndarray, fps: float) -> bytes:
     """Frames as an animated GIF whose one palette holds every marker colour (a palette per frame
     would drop the small markers' colours in most frames)."""
-    import io
-
-    from PIL import Image
-
     swatches = np.repeat(np.repeat(np.array(
         [[[round(255 * c) for c in colour[:3]] for colour in (*LEVEL_COLOURS, TRAIL_COLOUR, BOX_COLOUR)]],
         np.uint8), 16, axis=0), 16, axis=1)  # every marker colour, large enough to earn a palette entry
@@ -277,12 +266,6 @@ def film_for_trackers(trainer, state, run_dir: Path, steps: int):
     ``steps`` greedy steps filmed as `mjx-emp render` films them by default (its size, fps,
     camera and seed), written into RUN_DIR (:func:`video_name`; a phase-2 directory films its
     phase-2 policy) and kept as a GIF for TensorBoard."""
-    import jax
-
-    from mjx_emp.commands import RenderExperiment
-    from mjx_emp.run.store import SKILLS_FILE
-    from mjx_emp.run.tracking import Video
-
     phase2 = (Path(run_dir) / SKILLS_FILE).exists()
     look = RenderExperiment(run_dir=str(run_dir), steps=steps)
     recording = record_trained(trainer, state, phase2, jax.random.key(look.seed), steps)
