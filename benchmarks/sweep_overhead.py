@@ -26,7 +26,7 @@ import tyro
 
 from mjx_emp.algos.retired import flag_text
 from mjx_emp.run.rows import append_row, benchmark_row
-from mjx_emp.run.sweep import load_spec
+from mjx_emp.run.specs import load_spec
 
 ROOT = Path(__file__).resolve().parents[1]
 SPEC = "bench-sweep-overhead"

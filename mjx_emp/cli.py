@@ -9,9 +9,10 @@ and a message naming the field and what it allows.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import functools
 import io
-import os
+import json
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -45,8 +46,10 @@ from mjx_emp.errors import (
     TrainingDiverged,
     WriteError,
 )
-from mjx_emp.phase2.presets import PHASE2_PRESETS, PHASE2_RETIRED, phase2_preset_for
-from mjx_emp.run import store
+from mjx_emp.phase2.config import Phase2Config
+from mjx_emp.phase2.presets import OWN_TASK, PHASE2_PRESETS, PHASE2_RETIRED
+from mjx_emp.report import report_command
+from mjx_emp.run.compile_cache import use_compile_cache
 from mjx_emp.run.noise import quiet_libraries
 from mjx_emp.run.preflight import explain_out_of_memory
 from mjx_emp.run.provenance import command_line, overrides_of, run_record
@@ -71,7 +74,11 @@ def phase2_commands() -> Any:
             name, default=Phase2Experiment(run_dir=tyro.MISSING, config=cfg), description=f"{description} (on {phase1})")]
         for name, (description, phase1, cfg) in PHASE2_PRESETS.items()
     ]
-    return Union[tuple(commands)]  # noqa: UP007
+    own = Annotated[Phase2Experiment, tyro.conf.subcommand(
+        OWN_TASK, default=Phase2Experiment(run_dir=tyro.MISSING, config=Phase2Config()),
+        description="the run's own task (its preset's, else its domain's, size's and depth's); each flag given "
+                    "replaces that task's field")]
+    return Union[(own, *commands)]  # noqa: UP007
 
 
 COMMANDS: dict[str, tuple[Callable[[], Any], str]] = {
@@ -103,14 +110,16 @@ def list_presets(_: PresetsExperiment) -> None:
     print("\n".join(listing_lines(all_presets(), PHASE2_PRESETS)))
 
 
-def run_command(name: str, exp: Any, **extra: Any) -> Any:
-    """Command ``name``'s handler (:data:`mjx_emp.handlers.HANDLERS`) run on its request; the
-    catalogue (``presets``, plain Python) is listed here."""
-    if name == "presets":
-        return list_presets(exp)
-    from mjx_emp.handlers import HANDLERS  # deferred: JAX and MuJoCo load once a command runs, not for --help
+def handler(name: str) -> Callable[..., Any]:
+    """What runs command ``name``: :data:`mjx_emp.handlers.HANDLERS`' entry; the catalogue and the
+    reports, which need no JAX, are run from here."""
+    if name in ("presets", "report"):
+        return list_presets if name == "presets" else report_command
+    from mjx_emp.handlers import (
+        HANDLERS,  # deferred: JAX and MuJoCo load once a command runs
+    )
 
-    return HANDLERS[name](exp, **extra)
+    return HANDLERS[name]
 
 
 def parse(argv: list[str]) -> tuple[Callable[[Any], Any], Any]:
@@ -121,12 +130,30 @@ def parse(argv: list[str]) -> tuple[Callable[[Any], Any], Any]:
         for name, (make_type, help_text) in COMMANDS.items()
     )]
     exp = parse_quietly(choices, argv)
-    run = functools.partial(run_command, argv[0])
-    if argv[0] in ("train", "phase2"):  # the preset a new run is made from, kept beside it with its overrides
-        base = PHASE2_PRESETS[argv[1]][2] if argv[0] == "phase2" else all_presets()[argv[1]][1]
-        run = functools.partial(run, record=run_record(argv[1], overrides_of(base, exp.config),
-                                                       command_line(["mjx-emp", *argv])))
+    if argv[:2] == ["phase2", OWN_TASK]:  # the run's own task, with the fields the command line names
+        exp = dataclasses.replace(exp, own_task=tuple(given_fields(argv[2:], Phase2Config)))
+    run = handler(argv[0])
+    if argv[0] in ("train", "phase2"):
+        run = functools.partial(run, record=new_run_record(argv, exp))
     return run, exp
+
+
+def given_fields(args: list[str], config_type: type) -> list[str]:
+    """The fields of ``config_type`` that ``args`` name as flags (``--field``, ``--field=V``, ``--no-field``)."""
+    names = {field.name for field in dataclasses.fields(config_type)}
+    flags = [arg[2:].split("=", 1)[0].replace("-", "_") for arg in args if arg.startswith("--")]
+    return [flag if flag in names else flag.removeprefix("no_") for flag in flags
+            if flag in names or flag.removeprefix("no_") in names]
+
+
+def new_run_record(argv: list[str], exp: Any) -> dict:
+    """What a new run directory keeps of how it was asked for: its preset and the fields given beyond it."""
+    if argv[0] == "phase2" and exp.own_task is not None:
+        overrides = json.loads(json.dumps({name: getattr(exp.config, name) for name in exp.own_task}))
+    else:
+        base = PHASE2_PRESETS[argv[1]][2] if argv[0] == "phase2" else all_presets()[argv[1]][1]
+        overrides = overrides_of(base, exp.config)
+    return run_record(argv[1], overrides, command_line(["mjx-emp", *argv]))
 
 
 def parse_quietly(choices: Any, argv: list[str]) -> Any:
@@ -157,29 +184,10 @@ def panel_line(panel: str) -> str:
     return "; ".join(lines)
 
 
-def with_phase2_preset(args: list[str]) -> list[str]:
-    """``phase2`` arguments with a preset first: given ``RUN_DIR ...``, the run's own task
-    (:func:`mjx_emp.phase2.presets.phase2_preset_for`: of its preset, else of its domain, size
-    and depth). A retired task name is refused with the task that replaced it.
-    """
-    if not args or args[0] in PHASE2_PRESETS or args[0].startswith("-"):
-        return args
-    if not Path(args[0]).exists() and (args[0] in PHASE2_RETIRED or close_names(args[0], PHASE2_PRESETS)):
-        raise unknown_preset(args[0], PHASE2_PRESETS, "mjx-emp phase2 PRESET RUN_DIR", PHASE2_RETIRED)
-    skills = store.read_run_config(Path(args[0]), "run_dir")
-    preset = phase2_preset_for(skills)
-    if preset is None:
-        raise ConfigError(
-            f"run_dir: no phase-2 preset is built on env={skills.env} n={tuple(skills.n)}; name one "
-            f"before the run directory (mjx-emp phase2 PRESET RUN_DIR); presets: {sorted(PHASE2_PRESETS)}"
-        )
-    return [preset, *args]
-
-
 def canonical_args(argv: list[str]) -> list[str]:
     """The command line in the one form the parser reads: ``train --resume RUN_DIR ...`` is
-    ``resume RUN_DIR ...`` and ``phase2 --resume DIR ...`` is ``resume DIR ... --phase2``; ``phase2 RUN_DIR ...`` names the
-    run's own Table-2 preset (:func:`with_phase2_preset`)."""
+    ``resume RUN_DIR ...``, ``phase2 --resume DIR ...`` is ``resume DIR ... --phase2`` and ``phase2 RUN_DIR ...``
+    is ``phase2 own RUN_DIR ...`` (the run's own task, which the job picks once it reads the run)."""
     command, rest = argv[:1], argv[1:]
     if command in (["train"], ["phase2"]):
         phase2 = ["--phase2"] if command == ["phase2"] else []  # continue phase 2, never phase 1
@@ -188,35 +196,14 @@ def canonical_args(argv: list[str]) -> list[str]:
                 return ["resume", rest[i + 1], *rest[:i], *rest[i + 2:], *phase2]
             if arg.startswith("--resume="):
                 return ["resume", arg.split("=", 1)[1], *rest[:i], *rest[i + 1:], *phase2]
-    if command == ["phase2"]:
-        return ["phase2", *with_phase2_preset(rest)]
+    if command == ["phase2"] and rest and rest[0] not in (*PHASE2_PRESETS, OWN_TASK) and not rest[0].startswith("-"):
+        if not Path(rest[0]).exists() and (rest[0] in PHASE2_RETIRED or close_names(rest[0], PHASE2_PRESETS)):
+            raise unknown_preset(rest[0], PHASE2_PRESETS, "mjx-emp phase2 PRESET RUN_DIR", PHASE2_RETIRED)
+        return ["phase2", OWN_TASK, *rest]
     if command == ["train"] and rest and not rest[0].startswith("-"):
         presets = all_presets()
         if rest[0] not in presets:
             raise unknown_preset(rest[0], presets, "mjx-emp train PRESET", RETIRED)
-    return argv
-
-
-NO_COMPILE_CACHE = "--no-compile-cache"
-
-
-def default_compile_cache() -> Path:
-    """Where compiled programs are kept between runs: $XDG_CACHE_HOME/mjx-emp/xla (~/.cache/...)."""
-    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "mjx-emp" / "xla"
-
-
-def use_compile_cache(argv: list[str]) -> list[str]:
-    """Turn on JAX's persistent compilation cache for this process (before JAX is imported) and
-    return ``argv`` without the ``--no-compile-cache`` flag that turns it off.
-
-    A re-run, resume or second seed of the same config then loads its compiled epoch instead
-    of compiling it again; what it computes is unchanged. A ``JAX_COMPILATION_CACHE_DIR``
-    set by the user wins; programs that compile in under a second are not stored.
-    """
-    if NO_COMPILE_CACHE in argv:
-        return [arg for arg in argv if arg != NO_COMPILE_CACHE]
-    os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", str(default_compile_cache()))
-    os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "1")
     return argv
 
 

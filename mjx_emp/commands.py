@@ -153,6 +153,9 @@ class Phase2Experiment:
     """How many of the newest epoch checkpoints to keep."""
     tracking: Annotated[Tracking, tyro.conf.OmitArgPrefixes] = Tracking()
     """TensorBoard and W&B beside metrics.jsonl."""
+    own_task: Annotated[tuple[str, ...] | None, tyro.conf.Suppress] = None
+    """Set (by `mjx-emp phase2 RUN_DIR`, the ``own`` task): train the run's own task, its fields
+    replaced only where named here (the others of ``config`` are defaults, not choices)."""
 
 
 @dataclasses.dataclass(frozen=True)

@@ -20,8 +20,7 @@ import jax
 
 from mjx_emp import commands
 from mjx_emp.errors import ConfigError
-from mjx_emp.report import report_spec
-from mjx_emp.run import jobs, store, sweep
+from mjx_emp.run import jobs, specs, store, sweep
 from mjx_emp.run.evaluate import evaluate_runs, evaluation_text
 from mjx_emp.run.provenance import command_line
 from mjx_emp.run.throughput import random_rollout
@@ -86,20 +85,12 @@ def render(exp: commands.RenderExperiment) -> None:
 
 def run_sweep(exp: commands.SweepExperiment) -> None:
     """Check the spec, say what it holds, then run what is not done."""
-    spec = sweep.load_spec(exp.spec)  # a bad spec exits 2 here, before anything trains
-    for line in sweep.describe_plan(spec):
+    spec = specs.load_spec(exp.spec)  # a bad spec exits 2 here, before anything trains
+    for line in specs.describe_plan(spec):
         print(line)
     written = sweep.sweep(exp.spec, exp.runs, exp.results, exp.workers, exp.executor, exp.dry_run)
     if not exp.dry_run:
         print(f"sweep {spec.name}: {len(written)} row(s) written this call")
-
-
-def report(exp: commands.ReportExperiment) -> None:
-    """Print a spec's table (and write its figure and block where asked)."""
-    print(report_spec(exp.spec, exp.results, exp.metrics, exp.baseline, exp.figure, exp.curve, exp.into, exp.block,
-                      exp.reps, flip_table=exp.flip_table))
-    if exp.into:
-        print(f"wrote block {exp.block or Path(exp.spec).stem} of {exp.into}")
 
 
 def evaluate(exp: commands.EvalExperiment) -> dict:
@@ -140,8 +131,7 @@ HANDLERS: dict[str, Callable[[Any], Any]] = {
     "plot": plot,
     "render": render,
     "rollout": rollout,
-    "report": report,
     "sweep": run_sweep,
 }
-"""Each command's handler, by the command's name (``presets`` is the command line's own: it
-lists the catalogue without loading JAX)."""
+"""Each command's handler, by the command's name; ``presets`` and ``report``, which need no JAX,
+are the command line's own (:func:`mjx_emp.cli.run_command`)."""

@@ -1,236 +1,47 @@
 """Reports of sweep results: evaluation rows (``results/<spec>.jsonl``) turned into Markdown
 tables and seed-band figures, with the statistics the field reports for few-seed RL results
 (Agarwal et al., 2021): the interquartile mean with a 95 % stratified-bootstrap interval and the
-probability of improvement, both computed by ``rliable``.
+probability of improvement (:mod:`mjx_emp.report_stats`).
 
 Rows are read with :func:`mjx_emp.run.rows.read_rows`. Everything here is pure except the
-block and figure writers at the end (``read_block``, ``write_block``, ``seed_band_figure``). ``rliable`` and ``matplotlib`` are
-imported inside the functions that use them, so importing this module stays cheap and never
-starts JAX.
+figure and block writers (``seed_band_figure``, and :mod:`mjx_emp.blocks` for ``--into``).
+``rliable``, ``matplotlib`` and the modules that load JAX (the plots, the flip tables) are
+imported inside the functions that use them, so a table costs neither.
 """
 
 from __future__ import annotations
 
-import math
 import os
 import tomllib
-from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Sequence
 from dataclasses import dataclass
 from fnmatch import fnmatchcase
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from matplotlib.figure import Figure
 
 from mjx_emp import tables
 from mjx_emp.algos.retired import flag_text
+from mjx_emp.blocks import read_text, write_block
+from mjx_emp.commands import ReportExperiment
 from mjx_emp.errors import ConfigError
-from mjx_emp.run.flips import flip_text, pooled
+from mjx_emp.report_stats import (
+    DEFAULT_REPS,
+    METRICS,
+    Metric,
+    metric_named,
+    metric_values,
+    probability_of_improvement,
+    summary,
+)
 from mjx_emp.run.provenance import UNKNOWN
 from mjx_emp.run.rows import RESULTS_DIR, read_rows
+from mjx_emp.run.specs import check_report_table, load_spec
 from mjx_emp.run.store import output_target, replace_file
-from mjx_emp.run.sweep import check_report_table, load_spec
-from mjx_emp.viz.plots import axes_content, seed_band
-
-DEFAULT_REPS = 2000
-"""Bootstrap resamples per interval: a few tenths of a second per metric, and an interval
-whose ends move by well under the third significant digit from seed to seed at 3-10 runs."""
-
-CONFIDENCE = 0.95
-"""Coverage of every bootstrap interval."""
 
 MISSING = "-"
 """A table cell with no value."""
-
-
-# --------------------------------------------------------------------------- metrics
-
-
-@dataclass(frozen=True)
-class Metric:
-    """One number a row may carry: where it sits in the row, how tables and axes name it, and
-    which way is better (the probability of improvement reads it)."""
-
-    name: str
-    path: tuple[str, ...]
-    label: str
-    unit: str
-    lower_is_better: bool | None
-    """Which way is better: True for lower, False for higher, None where the metric does not
-    say (a figure named by its path); a table marks it ↓, ↑ or nothing."""
-
-    @property
-    def heading(self) -> str:
-        """The label with its unit, as an axis or a column names the metric."""
-        return f"{self.label} ({self.unit})" if self.unit else self.label
-
-
-def _metric(name: str, path: tuple[str, ...], label: str, unit: str = "",
-            lower_is_better: bool | None = False) -> Metric:
-    return Metric(name, path, label, unit, lower_is_better)
-
-
-METRICS: dict[str, Metric] = {m.name: m for m in (
-    _metric("phase2_min_distance", ("figures", "phase2", "min_distance"), "phase-2 min distance", "m", True),
-    _metric("phase2_success", ("figures", "phase2", "success"), "phase-2 success", "fraction"),
-    _metric("phase2_cut_short", ("figures", "phase2", "cut_short"),
-            "phase-2 episodes ended by a flip", "fraction", True),
-    _metric("phase2_aimed_min_distance", ("figures", "phase2", "aimed", "min_distance"),
-            "phase-2 aimed min distance", "m", True),
-    _metric("phase2_aimed_success", ("figures", "phase2", "aimed", "success"), "phase-2 aimed success", "fraction"),
-    _metric("phase2_random_min_distance", ("figures", "phase2", "random", "min_distance"),
-            "phase-2 random-goal min distance", "m", True),
-    _metric("phase2_random_success", ("figures", "phase2", "random", "success"),
-            "phase-2 random-goal success", "fraction"),
-    _metric("top_volume", ("figures", "top_volume"), "top-level goal-space volume", "m² or m"),
-    _metric("top_success", ("figures", "top_success"), "top-level success", "fraction"),
-    _metric("volume_x_success", ("figures", "volume_x_success"), "top volume × success", "m² or m"),
-    _metric("coverage_cells", ("figures", "coverage_cells"), "coverage", "cells"),
-    _metric("posterior_std", ("figures", "posterior_std"), "skill posterior std", ""),
-    _metric("flips", ("figures", "flips"), "flips per episode", "", True),
-    _metric("top_flip_share", ("figures", "flip_table", "-1", "flip_share"),
-            "top-level greedy episodes that flip the robot (flip table)", "fraction", True),
-    _metric("phase2_flip_share", ("figures", "phase2", "flip_table", "flip_share"),
-            "phase-2 greedy episodes that flip the robot (flip table)", "fraction", True),
-    _metric("env_steps", ("figures", "env_steps"), "env steps", ""),
-    _metric("top_success_training", ("figures", "top_success_training"),
-            "top-level success in training (mean of the last epochs)", "fraction"),
-    _metric("phase2_aimed_half_min_distance", ("figures", "phase2", "aimed_half", "min_distance"),
-            "phase-2 aimed-within-half min distance", "m", True),
-)}
-"""Every metric a report can show, by name. The volume's unit is m² for (x, y) goals and m for
-x goals; one table never mixes environments, so the unit is named once for both."""
-
-
-def metric_named(name: str | Metric) -> Metric:
-    """``name``'s entry in :data:`METRICS` (a :class:`Metric` passes through), or for a dotted
-    path into the row (``figures.cage.phase2.reached_beyond``) a metric reading that path,
-    labelled by the path after ``figures``, its better direction unsaid; any other name is a
-    ConfigError listing the known ones."""
-    if isinstance(name, Metric):
-        return name
-    if name in METRICS:
-        return METRICS[name]
-    path = tuple(name.split("."))
-    if len(path) > 1 and path[0] == "figures" and all(path):
-        return _metric(name, path, " ".join(path[1:]).replace("_", " "), lower_is_better=None)
-    raise ConfigError(f"metric: {name!r} is not one of {', '.join(METRICS)}, nor a path figures.NAME[.NAME...]")
-
-
-def lookup(row: dict, path: Sequence[str]) -> Any:
-    """The value at ``path`` in a nested row (a step into a list is its index, -1 the last),
-    or None where any step is missing."""
-    value: Any = row
-    for key in path:
-        if isinstance(value, list) and key.lstrip("-").isdigit() and -len(value) <= int(key) < len(value):
-            value = value[int(key)]
-        elif isinstance(value, dict):
-            value = value.get(key)
-        else:
-            return None
-    return value
-
-
-def as_number(value: Any) -> float | None:
-    """``value`` as a finite float, or None for a missing, non-numeric or non-finite value."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        return None
-    return float(value) if math.isfinite(value) else None
-
-
-def metric_values(rows: Sequence[dict], metric: str | Metric) -> list[float]:
-    """The metric's value in each row that has one, in row order; rows where it is missing,
-    null or not a finite number are skipped (so ``len`` is the n an aggregate stands on)."""
-    path = metric_named(metric).path
-    numbers = (as_number(lookup(row, path)) for row in rows)
-    return [x for x in numbers if x is not None]
-
-
-# --------------------------------------------------------------------------- statistics
-
-
-@contextmanager
-def seeded_numpy(seed: int) -> Iterator[None]:
-    """Run the block with numpy's global generator seeded by ``seed``, restoring its previous
-    state afterwards. rliable draws its bootstrap resamples with ``np.random.choice`` (the
-    global generator, not the ``random_state`` it accepts), so this is what makes its intervals
-    reproducible without disturbing anyone else's use of the global generator."""
-    state = np.random.get_state()
-    np.random.seed(seed)
-    try:
-        yield
-    finally:
-        np.random.set_state(state)
-
-
-def rliable_modules():
-    """rliable's ``library`` and ``metrics`` modules; a ConfigError saying how to install them
-    where the optional ``report`` extra is missing."""
-    try:
-        from rliable import library, metrics
-    except ImportError as err:
-        raise ConfigError(f"report: the statistics need rliable ({err}); pip install \"mjx-emp[report]\"") from None
-    return library, metrics
-
-
-def score_matrix(values: Sequence[float]) -> np.ndarray:
-    """Runs as rliable's score matrix: shape (runs, 1), one task."""
-    return np.asarray(values, dtype=float).reshape(-1, 1)
-
-
-def iqm_interval(values: Sequence[float], reps: int, seed: int) -> tuple[float, float, float]:
-    """(IQM, low, high): rliable's interquartile mean (the mean of the middle 50 % of runs)
-    and its percentile stratified-bootstrap interval."""
-    library, metrics = rliable_modules()
-
-    def iqm(scores: np.ndarray) -> np.ndarray:
-        return np.array([metrics.aggregate_iqm(scores)])
-
-    with seeded_numpy(seed):
-        points, intervals = library.get_interval_estimates(
-            {"runs": score_matrix(values)}, iqm, reps=reps, confidence_interval_size=CONFIDENCE)
-    return float(points["runs"][0]), float(intervals["runs"][0, 0]), float(intervals["runs"][1, 0])
-
-
-def summary(values: Sequence[float], reps: int = DEFAULT_REPS, seed: int = 0) -> dict[str, float | int] | None:
-    """n, mean, sample std (ddof 1; 0 for one run), standard error, and the IQM with its 95 %
-    bootstrap interval [iqm_low, iqm_high] of ``values``; None for no values. One run's
-    interval is the value itself (a bootstrap of one value has no spread to show)."""
-    n = len(values)
-    if n == 0:
-        return None
-    x = np.asarray(values, dtype=float)
-    std = float(x.std(ddof=1)) if n > 1 else 0.0
-    if n == 1:
-        iqm = low = high = float(x[0])
-    else:
-        iqm, low, high = iqm_interval(x, reps, seed)
-    return {"n": n, "mean": float(x.mean()), "std": std, "se": std / math.sqrt(n),
-            "iqm": iqm, "iqm_low": low, "iqm_high": high}
-
-
-def probability_of_improvement(x: Sequence[float], y: Sequence[float], lower_is_better: bool = False,
-                               reps: int = DEFAULT_REPS, seed: int = 0) -> tuple[float, float, float] | None:
-    """(P, low, high): the probability that a run of X beats a run of Y (ties count half), by
-    rliable, with its 95 % bootstrap interval resampling X's and Y's runs independently. For a
-    lower-is-better metric both are negated, so that "beats" means "is smaller". None where
-    either side has no runs."""
-    if len(x) == 0 or len(y) == 0:
-        return None
-    library, metrics = rliable_modules()
-
-    sign = -1.0 if lower_is_better else 1.0
-    xs, ys = sign * score_matrix(x), sign * score_matrix(y)
-
-    def improvement(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        return np.array([metrics.probability_of_improvement(a, b)])
-
-    with seeded_numpy(seed):
-        points, intervals = library.get_interval_estimates(
-            {"pair": [xs, ys]}, improvement, reps=reps, confidence_interval_size=CONFIDENCE)
-    return float(points["pair"][0]), float(intervals["pair"][0, 0]), float(intervals["pair"][1, 0])
 
 
 # --------------------------------------------------------------------------- tables
@@ -406,6 +217,8 @@ def seed_bands(rows: Sequence[dict], curve: str = "top_volume", group_by: str = 
     """Per group (first-appearance order) the mean and sample std over its seeds of ``curve``,
     each seed interpolated onto the steps of the one that ends first
     (:func:`mjx_emp.viz.plots.seed_band`); groups whose rows lack the curve are left out."""
+    from mjx_emp.viz.plots import seed_band  # deferred: the plots load JAX
+
     bands = {}
     for name, group in group_rows(rows, group_by).items():
         curves = [c for c in (row_curve(row, curve) for row in group) if c is not None]
@@ -427,6 +240,10 @@ def seed_band_figure(rows: Sequence[dict], curve: str = "top_volume", out: Path 
     band of one sample std, legend ``GROUP (n=K)``. Returns the path and what the axes show
     (read back from them), so a caller or a test can check the chart's content. No group with
     the curve is a ConfigError."""
+    from matplotlib.figure import Figure  # deferred: only a figure needs matplotlib
+
+    from mjx_emp.viz.plots import axes_content  # deferred: the plots load JAX
+
     bands = seed_bands(rows, curve, group_by)
     if not bands:
         raise ConfigError(f"figure: no row has a {curve!r} curve (with its {curve_steps_key(curve)})")
@@ -448,66 +265,6 @@ def seed_band_figure(rows: Sequence[dict], curve: str = "top_volume", out: Path 
     (shown,) = axes_content(fig)
     series = {name: Band(band.n, *shown.series[legend_text(name, band)], band.std) for name, band in bands.items()}
     return Chart(path, shown.title, shown.xlabel, shown.ylabel, shown.legend, series)
-
-
-# --------------------------------------------------------------------------- files
-
-
-def block_markers(name: str) -> tuple[str, str]:
-    """The lines that open and close a generated block ``name`` in a Markdown file."""
-    return f"<!-- report:{name} -->", f"<!-- /report:{name} -->"
-
-
-def block_span(lines: Sequence[str], name: str, markdown_file: Path) -> tuple[int, int]:
-    """Indices of the opening and closing marker lines of block ``name``; missing, repeated or
-    misordered markers are a ConfigError naming the file and the two lines to add."""
-    opening, closing = block_markers(name)
-    starts = [i for i, line in enumerate(lines) if line.strip() == opening]
-    ends = [i for i, line in enumerate(lines) if line.strip() == closing]
-    if len(starts) != 1 or len(ends) != 1 or starts[0] > ends[0]:
-        found = f"found {len(starts)} opening and {len(ends)} closing marker lines"
-        raise ConfigError(f"block: {markdown_file} needs exactly one block {name!r}, the lines {opening} and "
-                          f"{closing} on their own, in that order ({found}); add them where the text belongs")
-    return starts[0], ends[0]
-
-
-def read_text(path: Path, what: str) -> str:
-    """A file's text; a missing file is a ConfigError saying ``what`` it was to be."""
-    try:
-        return path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ConfigError(f"{what}: {path} does not exist") from None
-
-
-def read_block(markdown_file: Path | str, name: str) -> str:
-    """The text between block ``name``'s marker lines (without the final newline)."""
-    path = Path(markdown_file)
-    lines = read_text(path, "block").splitlines(keepends=True)
-    start, end = block_span(lines, name, path)
-    return "".join(lines[start + 1:end]).removesuffix("\n")
-
-
-def with_block(text: str, name: str, content: str, markdown_file: Path) -> str:
-    """``text`` with block ``name``'s content replaced by ``content`` plus a newline (no blank
-    line for empty content); the marker lines and all outside them are kept byte for byte."""
-    lines = text.splitlines(keepends=True)
-    start, end = block_span(lines, name, markdown_file)
-    if not lines[start].endswith("\n"):
-        lines[start] += "\n"
-    body = content if not content or content.endswith("\n") else content + "\n"
-    return "".join(lines[:start + 1]) + body + "".join(lines[end:])
-
-
-def write_block(markdown_file: Path | str, name: str, text: str) -> bool:
-    """Put ``text`` between block ``name``'s marker lines of ``markdown_file``, atomically;
-    True where the file changed (an unchanged block leaves the file untouched)."""
-    path = Path(markdown_file)
-    old = read_text(path, "block")
-    new = with_block(old, name, text, path)
-    if new == old:
-        return False
-    replace_file(path, new, chosen=True, field="into")
-    return True
 
 
 # --------------------------------------------------------------------------- a spec's report
@@ -538,7 +295,7 @@ BENCHMARK_KEYS = ("name", "command", "report")
 
 def load_report_spec(spec_path: str) -> Any:
     """The spec a report reads: a benchmark spec (a TOML file with a ``command``, see
-    :class:`BenchmarkSpec`) or a sweep spec (:func:`mjx_emp.run.sweep.load_spec`)."""
+    :class:`BenchmarkSpec`) or a sweep spec (:func:`mjx_emp.run.specs.load_spec`)."""
     path = Path(spec_path)
     try:
         raw = tomllib.loads(read_text(path, "spec"))
@@ -578,6 +335,8 @@ def chosen_rows(rows: Sequence[dict], patterns: Sequence[str]) -> list[dict]:
 def row_flip_table(rows: Sequence[dict], name: str) -> str:
     """Row ``name``'s flip tables pooled over its runs (:func:`mjx_emp.run.flips.pooled`), as
     `mjx-emp eval` prints them; a row without one is a ConfigError naming the rows that have one."""
+    from mjx_emp.run.flips import flip_text, pooled  # deferred: run.flips loads JAX
+
     held = [row for row in rows if row["row"] == name and (row.get("figures") or {}).get("flip_table")]
     if not held:
         having = sorted({row["row"] for row in rows if (row.get("figures") or {}).get("flip_table")})
@@ -643,3 +402,11 @@ def report_spec(spec_path: str, results: str = "", metrics: Sequence[str] = (), 
     if into and write:
         write_block(into, block or spec.name, text)
     return text
+
+
+def report_command(exp: ReportExperiment) -> None:
+    """`mjx-emp report`: print a spec's table (and write its figure and block where asked)."""
+    print(report_spec(exp.spec, exp.results, exp.metrics, exp.baseline, exp.figure, exp.curve, exp.into, exp.block,
+                      exp.reps, flip_table=exp.flip_table))
+    if exp.into:
+        print(f"wrote block {exp.block or Path(exp.spec).stem} of {exp.into}")

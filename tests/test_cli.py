@@ -121,6 +121,29 @@ def test_resume_forms_are_one_command(tmp_path):
     assert canonical_args(["train", "point-mass-k1", "--epochs", "3"]) == ["train", "point-mass-k1", "--epochs", "3"]
 
 
+def test_phase2_of_a_run_directory_is_its_own_task_with_only_the_named_fields_replaced(tmp_path):
+    """`phase2 RUN_DIR` reads no file to parse: it is the `own` task, resolved where the run is read."""
+    import dataclasses
+
+    from mjx_emp.algos.registry import all_presets
+    from mjx_emp.cli import canonical_args, given_fields, parse
+    from mjx_emp.phase2.config import Phase2Config
+    from mjx_emp.phase2.presets import PHASE2_PRESETS, phase2_preset_for
+    from mjx_emp.run.jobs import own_task
+
+    missing = str(tmp_path / "no-run-here")
+    assert canonical_args(["phase2", missing, "--epochs", "3"]) == ["phase2", "own", missing, "--epochs", "3"]
+    assert given_fields(["--epochs", "3", "--flip-cost=2.5", "--no-learn-from-resets", "--out", "x"], Phase2Config) \
+        == ["epochs", "flip_cost", "learn_from_resets"]
+    _, exp = parse(canonical_args(["phase2", missing, "--epochs", "3"]))
+    assert exp.own_task == ("epochs",)
+    skills = all_presets()["point-mass-k1"][1]
+    task = phase2_preset_for(skills)
+    resolved, record = own_task(exp, skills, {"preset": "own", "overrides": {"epochs": 3}})
+    assert resolved.config == dataclasses.replace(PHASE2_PRESETS[task][2], epochs=3) and resolved.own_task is None
+    assert record == {"preset": task, "overrides": {"epochs": 3}}
+
+
 def test_help_explains_fields():
     result = cli("rollout", "--help")
     assert result.returncode == 0

@@ -12,7 +12,8 @@ from pathlib import Path
 import pytest
 
 from mjx_emp.cli import canonical_args, parse
-from mjx_emp.report import read_block, report_spec
+from mjx_emp.blocks import read_block
+from mjx_emp.report import report_spec
 
 ROOT = Path(__file__).resolve().parents[1]
 PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
@@ -60,7 +61,8 @@ def test_a_generated_figure_shows_each_rows_curve_by_group_with_its_n_and_units(
     """The figure a block links is drawn from the rows the block reads: one series per row name
     whose runs hold the curve, its n the runs that hold it, its first point their mean, the
     axes in env steps and in the curve's unit; and the committed PNG is there."""
-    from mjx_emp.report import METRICS, load_report_spec, seed_band_figure, spec_rows
+    from mjx_emp.report import load_report_spec, seed_band_figure, spec_rows
+    from mjx_emp.report_stats import METRICS
 
     monkeypatch.chdir(ROOT)
     block = read_block(page, name)

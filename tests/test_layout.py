@@ -22,9 +22,10 @@ LAYERS = [
     ["mjx_emp.run.packing", "mjx_emp.run.checkpoint", "mjx_emp.run.store", "mjx_emp.run.loop", "mjx_emp.run.jobs", "mjx_emp.run.evaluate",
      "mjx_emp.run.flips", "mjx_emp.run.tracking",
      "mjx_emp.run.seeds", "mjx_emp.run.devices", "mjx_emp.run.hosts", "mjx_emp.run.preflight", "mjx_emp.run.rows",
-     "mjx_emp.run.provenance", "mjx_emp.run.sweep", "mjx_emp.run.noise", "mjx_emp.run.throughput"],
+     "mjx_emp.run.provenance", "mjx_emp.run.specs", "mjx_emp.run.sweep", "mjx_emp.run.noise", "mjx_emp.run.throughput",
+     "mjx_emp.run.compile_cache"],
     ["mjx_emp.viz.gl", "mjx_emp.viz.plots", "mjx_emp.viz.render", "mjx_emp.viz.flips"],
-    ["mjx_emp.report"],
+    ["mjx_emp.report_stats", "mjx_emp.blocks", "mjx_emp.report"],
     ["mjx_emp.handlers"],
     ["mjx_emp.cli", "mjx_emp.api"],
 ]

@@ -9,17 +9,9 @@ import pytest
 
 from mjx_emp.errors import ConfigError
 from mjx_emp.run.rows import read_rows
-from mjx_emp.report import (
-    METRICS,
-    markdown_table,
-    metric_named,
-    metric_values,
-    probability_of_improvement,
-    read_block,
-    seed_band_figure,
-    summary,
-    write_block,
-)
+from mjx_emp.blocks import read_block, write_block
+from mjx_emp.report import markdown_table, seed_band_figure
+from mjx_emp.report_stats import METRICS, metric_named, metric_values, probability_of_improvement, summary
 
 REPS = 500  # enough for stable intervals on a handful of runs, and quick
 

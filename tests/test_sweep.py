@@ -19,7 +19,7 @@ from tiny import mjx_emp, run_cli
 from mjx_emp.errors import ConfigError
 from mjx_emp.run.evaluate import row_figures
 from mjx_emp.run.rows import read_rows
-from mjx_emp.run.sweep import load_spec
+from mjx_emp.run.specs import load_spec
 
 ROOT = Path(__file__).resolve().parents[1]
 SMOKE = ROOT / "experiments" / "smoke-point-mass.toml"

@@ -128,6 +128,10 @@ def levels_of(skills) -> int:
     return len(skills.n) if skill_kind(skills) == GOAL_SPACES else 1
 
 
+OWN_TASK = "own"
+"""`mjx-emp phase2 own RUN_DIR` (or `mjx-emp phase2 RUN_DIR`): the run's own task, :func:`phase2_preset_for`."""
+
+
 def phase2_preset_for(skills) -> str | None:
     """The phase-2 task for a run trained with ``skills``: the one built on the phase-1 preset
     it was trained with (seed and when it stops aside), else the first built on a preset of its

@@ -34,6 +34,7 @@ from mjx_emp.commands import (
 from mjx_emp.errors import ConfigError, RenderError
 from mjx_emp.phase2.build import make_phase2_trainer
 from mjx_emp.phase2.config import Phase2Config
+from mjx_emp.phase2.presets import PHASE2_PRESETS, phase2_preset_for
 from mjx_emp.run import loop
 from mjx_emp.run.checkpoint import Checkpoints
 from mjx_emp.run.devices import ShardedAgent, choose_devices, shard_slice
@@ -305,6 +306,8 @@ def train_phase2(exp: Phase2Experiment, film: Film | None = None, record: dict |
     check_phase2(exp)
     requested = None if exp.config.phase1_epoch < 0 else exp.config.phase1_epoch
     skills, epoch, skills_state = load_run(Path(exp.run_dir), field="run_dir", epoch=requested)
+    if exp.own_task is not None:
+        exp, record = own_task(exp, skills.cfg, record)
     cfg = dataclasses.replace(exp.config, phase1_epoch=epoch)
     trainer = make_phase2_trainer(skills, cfg)
     out = fresh_run_dir(exp.out or str(Path(exp.run_dir) / PHASE2_SUBDIR), "out", "a phase-2 run", "mjx-emp phase2")
@@ -315,6 +318,20 @@ def train_phase2(exp: Phase2Experiment, film: Film | None = None, record: dict |
             write_run_record(out, record)
         write_config(out, trainer.cfg)
         return _train_run(trainer, trainer.init(skills_state), out, exp.keep_checkpoints, exp.tracking, film=film)
+
+
+def own_task(exp: Phase2Experiment, skills_cfg, record: dict | None) -> tuple[Phase2Experiment, dict | None]:
+    """``exp`` as the run's own phase-2 task (:func:`mjx_emp.phase2.presets.phase2_preset_for`)
+    with the fields ``exp.own_task`` names taken from ``exp.config``; ``record`` names that task."""
+    preset = phase2_preset_for(skills_cfg)
+    if preset is None:
+        raise ConfigError(f"run_dir: no phase-2 preset is built on env={skills_cfg.env} n={tuple(skills_cfg.n)}; "
+                          f"name one before the run directory (mjx-emp phase2 PRESET RUN_DIR); presets: "
+                          f"{sorted(PHASE2_PRESETS)}")
+    given = {name: getattr(exp.config, name) for name in exp.own_task}
+    cfg = dataclasses.replace(PHASE2_PRESETS[preset][2], **given)
+    print(f"phase 2 task: {preset} (the run's own){' with ' + ', '.join(exp.own_task) if given else ''}", flush=True)
+    return dataclasses.replace(exp, config=cfg, own_task=None), record and {**record, "preset": preset}
 
 
 def load_phase2(phase2_dir: Path, fallback: bool = False, stops: dict | None = None, field: str = "run_dir",
