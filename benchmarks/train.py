@@ -34,8 +34,9 @@ import jax
 import jax.numpy as jnp
 import tyro
 
-from mjx_emp.algos.he.agent import MODE_GC, TRAIN_EPOCH_TRACE, HEAgent
+from mjx_emp.algos.he.agent import HEAgent
 from mjx_emp.algos.he.config import HEConfig
+from mjx_emp.algos.he.state import MODE_GC, TRAIN_EPOCH_TRACE
 from mjx_emp.algos.registry import preset_or_retired_config
 from mjx_emp.rollout.hierarchy import jit_init_rollout, jit_rollout
 from mjx_emp.run.checkpoint import Checkpoints

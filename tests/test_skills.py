@@ -19,9 +19,15 @@ from tiny import TINY, mjx_emp, run_cli
 
 from mjx_emp.algos.he.agent import HEAgent
 from mjx_emp.algos.he.config import GcrlConfig
+from mjx_emp.algos.registry import make_agent
 from mjx_emp.algos.skills import objectives as obj
 from mjx_emp.algos.skills.agent import SkillAgent
-from mjx_emp.algos.skills.config import DadsConfig, DiaynConfig, HidioConfig, MetraConfig
+from mjx_emp.algos.skills.config import (
+    DadsConfig,
+    DiaynConfig,
+    HidioConfig,
+    MetraConfig,
+)
 from mjx_emp.commands import ResumeExperiment, TrainExperiment
 from mjx_emp.envs.env import make_env
 from mjx_emp.errors import ConfigError
@@ -195,7 +201,7 @@ def test_gcrl_goal_spaces_stay_the_hand_set_boxes_while_the_policies_learn():
         np.testing.assert_allclose(box["shift"], [0.0, 0.0], atol=1e-7)
     assert any(not np.array_equal(a, b) for a, b in zip(actors, jax.tree.leaves(state.policies[0].actor)))
     with pytest.raises(ConfigError, match="gs_iterations: GCRL learns no goal space; must be 0, got 1"):
-        HEAgent(dataclasses.replace(tiny("gcrl"), gs_iterations=1))
+        make_agent(dataclasses.replace(tiny("gcrl"), gs_iterations=1))
 
 
 def test_skill_paths_start_at_the_initial_state_and_move():
@@ -219,7 +225,7 @@ def test_skill_paths_start_at_the_initial_state_and_move():
 )
 def test_bad_skill_config_names_the_field(change, message):
     with pytest.raises(ConfigError) as err:
-        SkillAgent(dataclasses.replace(tiny("metra"), **change))
+        make_agent(dataclasses.replace(tiny("metra"), **change))
     assert message in str(err.value)
 
 

@@ -12,18 +12,19 @@ import pytest
 from tiny import TINY, TINY1, tiny_after_two_epochs, tiny_trainer
 
 from mjx_emp import gce
-from mjx_emp.algos.he.agent import (
+from mjx_emp.algos.he.agent import HEAgent
+from mjx_emp.algos.he.config import HEConfig
+from mjx_emp.algos.he.state import (
     MODE_EVAL,
     MODE_GC,
     MODE_GS,
     MODE_STARTS,
     TRAIN_EPOCH_TRACE,
     EpisodeInfo,
-    HEAgent,
     epoch_schedule,
     start_subset,
 )
-from mjx_emp.algos.he.config import HEConfig
+from mjx_emp.algos.registry import make_agent
 from mjx_emp.envs.env import make_env
 from mjx_emp.errors import ConfigError
 from mjx_emp.learners.ddpg import (
@@ -278,7 +279,7 @@ def test_restore_round_trips_observations():
 )
 def test_bad_train_config_names_the_field(change, field):
     with pytest.raises(ConfigError, match=field):
-        HEAgent(HEConfig(**{**TINY.__dict__, **change}))
+        make_agent(HEConfig(**{**TINY.__dict__, **change}))  # the config is checked where its agent is built
 
 
 def test_trainers_of_equal_configs_share_one_compiled_epoch():

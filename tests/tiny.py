@@ -13,8 +13,9 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from mjx_emp.algos.he.agent import TRAIN_EPOCH_TRACE, HEAgent
+from mjx_emp.algos.he.agent import HEAgent
 from mjx_emp.algos.he.config import HEConfig
+from mjx_emp.algos.he.state import TRAIN_EPOCH_TRACE
 from mjx_emp.phase2.config import Phase2Config
 from mjx_emp.tracing import traces
 

@@ -30,7 +30,8 @@ import numpy as np
 import optax
 from flax import struct
 
-from mjx_emp.algos.he.agent import HEAgent, HEState
+from mjx_emp.algos.he.agent import HEAgent
+from mjx_emp.algos.he.state import HEState
 from mjx_emp.checks import compile_identity
 from mjx_emp.counters import StepCounter
 from mjx_emp.envs.registry import DOMAINS, tiltable
