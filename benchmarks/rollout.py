@@ -34,11 +34,11 @@ from mjx_emp.envs.scripted import bounded_hop, point_mass_pd
 from mjx_emp.nets import mlp_agent
 from mjx_emp.rollout.hierarchy import (
     ROLLOUT_TRACE,
-    Hierarchy,
     default_start,
     jit_init_rollout,
     jit_rollout,
 )
+from mjx_emp.rollout.structures import Hierarchy
 from mjx_emp.run.rows import RESULTS_DIR, append_row, benchmark_row
 from mjx_emp.tracing import traces
 

@@ -21,7 +21,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from mjx_emp.envs.env import Env
-from mjx_emp.rollout.hierarchy import LevelPolicy, Params
+from mjx_emp.rollout.structures import LevelPolicy, Params
 
 # (box_params, obs) -> (shift, half_width): the box a level's actions are squashed into.
 BoxFn = Callable[[Any, jax.Array], tuple[jax.Array, jax.Array]]

@@ -23,8 +23,8 @@ from mjx_emp.algos.registry import config_from_json
 from mjx_emp.errors import CheckpointError, CheckpointWriteError, TrainingDiverged
 from mjx_emp.run import checkpoint, loop
 from mjx_emp.run.checkpoint import Checkpoints, config_mismatches
-from mjx_emp.run.packing import layout_mismatch, layout_of, pack, unpack
 from mjx_emp.run.jobs import load_run
+from mjx_emp.run.packing import layout_mismatch, layout_of, pack, unpack
 from mjx_emp.run.store import keep_metrics_through, read_metrics, write_config
 
 

@@ -8,7 +8,13 @@ import numpy as np
 import pytest
 
 from mjx_emp import cli
-from mjx_emp.metrics import aggregate_phase2, aggregate_runs, coverage_cells, mean_and_stderr, running_min_distance
+from mjx_emp.metrics import (
+    aggregate_phase2,
+    aggregate_runs,
+    coverage_cells,
+    mean_and_stderr,
+    running_min_distance,
+)
 from mjx_emp.viz.plots import (
     METHOD_COLOURS,
     axes_content,

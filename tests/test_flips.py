@@ -10,7 +10,7 @@ import pytest
 from tiny import TINY_PHASE2, tiny_after_two_epochs
 
 from mjx_emp.envs.env import Env
-from mjx_emp.rollout.hierarchy import Transition
+from mjx_emp.rollout.structures import Transition
 from mjx_emp.run import flips
 
 

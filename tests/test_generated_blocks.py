@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from mjx_emp.cli import canonical_args, parse
 from mjx_emp.blocks import read_block
+from mjx_emp.cli import canonical_args, parse
 from mjx_emp.report import report_spec
 
 ROOT = Path(__file__).resolve().parents[1]

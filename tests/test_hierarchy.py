@@ -11,14 +11,13 @@ from mjx_emp.envs.env import make_env
 from mjx_emp.envs.scripted import bounded_hop, point_mass_pd
 from mjx_emp.nets import mlp_agent
 from mjx_emp.rollout.hierarchy import (
-    Driver,
-    Hierarchy,
     decide,
     decision_buckets,
     default_start,
     jit_init_rollout,
     jit_rollout,
 )
+from mjx_emp.rollout.structures import Driver, Hierarchy
 
 ENV = make_env("point_mass")
 START = default_start(ENV, goal_half_width=3.0)

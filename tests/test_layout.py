@@ -12,7 +12,7 @@ LAYERS = [
     ["mjx_emp.checks", "mjx_emp.envs.registry"],
     ["mjx_emp.envs.mjx_quiet", "mjx_emp.envs.env", "mjx_emp.envs.scripted", "mjx_emp.gce", "mjx_emp.replay",
      "mjx_emp.metrics"],
-    ["mjx_emp.rollout.hierarchy", "mjx_emp.rollout.collect", "mjx_emp.rollout.flat"],
+    ["mjx_emp.rollout.structures", "mjx_emp.rollout.hierarchy", "mjx_emp.rollout.collect", "mjx_emp.rollout.flat"],
     ["mjx_emp.nets"],
     ["mjx_emp.learners.common", "mjx_emp.learners.ddpg", "mjx_emp.learners.goal_space", "mjx_emp.learners.sac"],
     ["mjx_emp.algos.*", "mjx_emp.phase2.config"],  # every algorithm's own folder: adding one needs no line here

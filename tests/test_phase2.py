@@ -344,7 +344,7 @@ def test_attempt_rows_follow_each_first_episode_attempt_by_attempt():
     """Rows [T=5, B=2]: environment 0 ends attempts at steps 1 and 3 (its first episode ends at 3,
     so step 4's row belongs to its second); environment 1's first attempt is cut short at step 0
     after moving away from the goal, its second ends at step 2 on its back."""
-    from mjx_emp.rollout.hierarchy import Transition
+    from mjx_emp.rollout.structures import Transition
     from mjx_emp.run.flips import attempt_rows
 
     obs, next_obs = np.zeros((5, 2, 2)), np.zeros((5, 2, 2))
@@ -383,7 +383,7 @@ def test_collect_totals_split_the_distance_between_cut_and_uncut_episodes():
     """Over first episodes only: the uncut mean leaves out the episodes a reset ended (and the
     rows that are not first episodes), and is NaN once every counted episode was cut."""
     from mjx_emp.rollout.collect import CollectTotals
-    from mjx_emp.rollout.hierarchy import RolloutStats
+    from mjx_emp.rollout.structures import RolloutStats
 
     zero = jnp.int32(0)
     stats = RolloutStats(primitive_steps=jnp.int32(4), useful_steps=zero, episodes_finished=zero, nan_resets=zero,

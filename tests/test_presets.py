@@ -18,7 +18,12 @@ from mjx_emp.algos.names import (
     parse_task_name,
     recommended_names,
 )
-from mjx_emp.algos.registry import algorithm_of, all_presets, config_from_json, retired_config
+from mjx_emp.algos.registry import (
+    algorithm_of,
+    all_presets,
+    config_from_json,
+    retired_config,
+)
 from mjx_emp.algos.retired import REDEFINED, RETIRED, Retired, flag_text, retired_rows
 from mjx_emp.phase2.presets import PHASE2_PRESETS, PHASE2_RETIRED, phase2_preset_for
 

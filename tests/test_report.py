@@ -7,11 +7,17 @@ from pathlib import Path
 
 import pytest
 
-from mjx_emp.errors import ConfigError
-from mjx_emp.run.rows import read_rows
 from mjx_emp.blocks import read_block, write_block
+from mjx_emp.errors import ConfigError
 from mjx_emp.report import markdown_table, seed_band_figure
-from mjx_emp.report_stats import METRICS, metric_named, metric_values, probability_of_improvement, summary
+from mjx_emp.report_stats import (
+    METRICS,
+    metric_named,
+    metric_values,
+    probability_of_improvement,
+    summary,
+)
+from mjx_emp.run.rows import read_rows
 
 REPS = 500  # enough for stable intervals on a handful of runs, and quick
 

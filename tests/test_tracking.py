@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from tiny import SMALL, TINY1, run_cli
 
-from mjx_emp.commands import TrainExperiment, Tracking
+from mjx_emp.commands import Tracking, TrainExperiment
 from mjx_emp.errors import ConfigError, RenderError
 from mjx_emp.run import jobs, store
 from mjx_emp.run.tracking import VIDEO_TAG, flatten

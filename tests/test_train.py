@@ -40,7 +40,7 @@ from mjx_emp.learners.ddpg import (
 from mjx_emp.learners.goal_space import GoalSpaceSample
 from mjx_emp.nets import greedy_batch
 from mjx_emp.replay import replay_init, replay_insert
-from mjx_emp.rollout.hierarchy import EpisodeEnd
+from mjx_emp.rollout.structures import EpisodeEnd
 from mjx_emp.tracing import traces
 
 

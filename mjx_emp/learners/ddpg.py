@@ -17,7 +17,7 @@ from mjx_emp import gce
 from mjx_emp.envs.env import Env
 from mjx_emp.learners.common import actor_critic_step
 from mjx_emp.replay import episode_walk
-from mjx_emp.rollout.hierarchy import Params, Transition
+from mjx_emp.rollout.structures import Params, Transition
 
 
 @struct.dataclass

@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from mjx_emp.rollout.hierarchy import Params
+from mjx_emp.rollout.structures import Params
 
 
 @struct.dataclass

@@ -65,7 +65,8 @@ from mjx_emp.replay import (
     replay_sample,
 )
 from mjx_emp.rollout.collect import CollectTotals, collect
-from mjx_emp.rollout.hierarchy import Hierarchy, Params, RolloutPlan, init_rollout
+from mjx_emp.rollout.hierarchy import init_rollout
+from mjx_emp.rollout.structures import Hierarchy, Params, RolloutPlan
 from mjx_emp.tracing import count_trace
 
 AIM_PRIOR_OUT_SCALE = 1e-4

@@ -17,14 +17,14 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from mjx_emp.rollout.hierarchy import (
+from mjx_emp.rollout.hierarchy import rollout
+from mjx_emp.rollout.structures import (
     EpisodeEnd,
     Hierarchy,
     RolloutState,
     RolloutStats,
     StartFn,
     Transition,
-    rollout,
 )
 
 

@@ -27,12 +27,8 @@ from typing import Any
 import jax
 import numpy as np
 
-from mjx_emp.rollout.hierarchy import (
-    RolloutPlan,
-    Transition,
-    jit_init_rollout,
-    jit_rollout,
-)
+from mjx_emp.rollout.hierarchy import jit_init_rollout, jit_rollout
+from mjx_emp.rollout.structures import RolloutPlan, Transition
 
 STEPS_BEFORE = 10
 """Steps before an episode's end that the tilt and angular-speed table follows."""

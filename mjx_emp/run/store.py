@@ -296,7 +296,9 @@ def run_lock(run_dir: Path, field: str) -> Iterator[None]:
     2) is refused with a ConfigError naming the process that holds it. The lock is the
     kernel's (``flock``), so it goes with its process however that ends; a lock file left by a
     killed process is taken over with a note. With several hosts only the lead locks."""
-    from mjx_emp.run.hosts import is_lead  # deferred: hosts imports JAX, and the CLI reads run files without it
+    from mjx_emp.run.hosts import (
+        is_lead,  # deferred: hosts imports JAX, and the CLI reads run files without it
+    )
 
     if not is_lead():
         yield

@@ -45,6 +45,7 @@ from mjx_emp.run.rows import RESULTS_DIR, append_row, read_rows
 from mjx_emp.run.seeds import resume_seeds
 from mjx_emp.run.specs import EXECUTORS, Row, Spec, load_spec
 
+
 @dataclasses.dataclass(frozen=True)
 class Job:
     """What one worker does: a row's seeds trained (as one program where they can be), their

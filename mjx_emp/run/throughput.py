@@ -11,7 +11,8 @@ import jax
 from mjx_emp.commands import RolloutExperiment
 from mjx_emp.envs.env import make_env
 from mjx_emp.nets import mlp_agent
-from mjx_emp.rollout.hierarchy import Hierarchy, default_start, jit_init_rollout, jit_rollout
+from mjx_emp.rollout.hierarchy import default_start, jit_init_rollout, jit_rollout
+from mjx_emp.rollout.structures import Hierarchy
 
 
 def random_rollout(cfg: RolloutExperiment) -> dict:

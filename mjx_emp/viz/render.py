@@ -26,7 +26,8 @@ from PIL import Image
 from mjx_emp.algos.registry import GOAL_SPACES, skill_kind
 from mjx_emp.commands import RenderExperiment
 from mjx_emp.errors import ConfigError, RenderError
-from mjx_emp.rollout.hierarchy import RolloutPlan, jit_init_rollout, jit_rollout
+from mjx_emp.rollout.hierarchy import jit_init_rollout, jit_rollout
+from mjx_emp.rollout.structures import RolloutPlan
 from mjx_emp.run.store import SKILLS_FILE, replace_file
 from mjx_emp.run.tracking import Video
 

@@ -58,12 +58,8 @@ from mjx_emp.replay import (
     replay_init,
     replay_insert,
 )
-from mjx_emp.rollout.hierarchy import (
-    Driver,
-    Hierarchy,
-    Params,
-    init_rollout,
-)
+from mjx_emp.rollout.hierarchy import init_rollout
+from mjx_emp.rollout.structures import Driver, Hierarchy, Params
 from mjx_emp.shards import ShardAxes, mean_gradients, shard_mean
 from mjx_emp.tracing import count_trace
 

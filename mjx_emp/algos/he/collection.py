@@ -47,12 +47,8 @@ from mjx_emp.replay import (
     replay_write,
 )
 from mjx_emp.rollout.collect import CollectTotals, collect
-from mjx_emp.rollout.hierarchy import (
-    EpisodeEnd,
-    RolloutPlan,
-    Transition,
-    init_rollout,
-)
+from mjx_emp.rollout.hierarchy import init_rollout
+from mjx_emp.rollout.structures import EpisodeEnd, RolloutPlan, Transition
 from mjx_emp.shards import shard_sum
 
 

@@ -29,9 +29,7 @@ from mjx_emp.replay import (
     replay_sample,
     sample_slots,
 )
-from mjx_emp.rollout.hierarchy import (
-    Params,
-)
+from mjx_emp.rollout.structures import Params
 
 
 class HELearning:

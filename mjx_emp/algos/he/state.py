@@ -22,10 +22,7 @@ from mjx_emp.replay import (
     replay_init,
     replay_insert,
 )
-from mjx_emp.rollout.hierarchy import (
-    Params,
-    RolloutState,
-)
+from mjx_emp.rollout.structures import Params, RolloutState
 
 EVAL_STARTS = ("buffer", "initial", "chained")
 """Where :meth:`HEAgent.evaluate` starts its episodes: the level's start-state buffer (states
