@@ -14,7 +14,7 @@ import functools
 import io
 import json
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Annotated, Any, Union
 
@@ -110,16 +110,16 @@ def list_presets(_: PresetsExperiment) -> None:
     print("\n".join(listing_lines(all_presets(), PHASE2_PRESETS)))
 
 
-def handler(name: str) -> Callable[..., Any]:
-    """What runs command ``name``: :data:`mjx_emp.handlers.HANDLERS`' entry; the catalogue and the
-    reports, which need no JAX, are run from here."""
+def run_command(name: str, exp: Any, **extra: Any) -> Any:
+    """Command ``name`` run on its request: :data:`mjx_emp.handlers.HANDLERS`' entry, imported
+    only now (after the OpenGL set-up); the catalogue and the reports, which need no JAX, run here."""
     if name in ("presets", "report"):
-        return list_presets if name == "presets" else report_command
+        return (list_presets if name == "presets" else report_command)(exp)
     from mjx_emp.handlers import (
         HANDLERS,  # deferred: JAX and MuJoCo load once a command runs
     )
 
-    return HANDLERS[name]
+    return HANDLERS[name](exp, **extra)
 
 
 def parse(argv: list[str]) -> tuple[Callable[[Any], Any], Any]:
@@ -132,7 +132,7 @@ def parse(argv: list[str]) -> tuple[Callable[[Any], Any], Any]:
     exp = parse_quietly(choices, argv)
     if argv[:2] == ["phase2", OWN_TASK]:  # the run's own task, with the fields the command line names
         exp = dataclasses.replace(exp, own_task=tuple(given_fields(argv[2:], Phase2Config)))
-    run = handler(argv[0])
+    run = functools.partial(run_command, argv[0])
     if argv[0] in ("train", "phase2"):
         run = functools.partial(run, record=new_run_record(argv, exp))
     return run, exp
@@ -218,12 +218,13 @@ FAILURES = (
 """(error type, what the message calls it, exit code) of every failure the CLI reports in one line."""
 
 
-def main_guarded(command: Callable, exp) -> None:
-    """Run a CLI command; bad input exits 2, divergence, a failed checkpoint write or running out of
-    memory 1, a failed file write 1 (2 for a path the user chose), no offscreen GL 3,
-    SIGINT/SIGTERM 130/143, each with a reason."""
+@contextlib.contextmanager
+def exit_codes() -> Iterator[None]:
+    """Run a command inside: bad input exits 2, divergence, a failed checkpoint write or running out
+    of memory 1, a failed file write 1 (2 for a path the user chose), no offscreen GL 3,
+    SIGINT/SIGTERM 130/143, each with a one-line reason."""
     try:
-        command(exp)
+        yield
     except Interrupted as stop:
         say(str(stop))
         sys.exit(128 + stop.signum)
@@ -257,29 +258,32 @@ def run_folder(exp: Any) -> Path | None:
     return Path(dirs[0]) if dirs and Path(dirs[0]).is_dir() else None
 
 
+def run(args: list[str], noise: Any) -> None:
+    """Parse a command line, choose the OpenGL backend where the command films (before anything
+    imports MuJoCo), and run the command; the libraries' messages go to its run directory."""
+    command, exp = parse(canonical_args(args))  # imports no mujoco
+    tracking = getattr(exp, "tracking", None)
+    if args[:1] == ["render"]:
+        configure_headless_gl()
+    elif tracking is not None and tracking.on() and tracking.video_steps:
+        prefer_headless_gl()  # the trackers' video at the end
+    try:
+        command(exp)
+    finally:
+        noise.write(run_folder(exp))  # RUN_DIR/library.log, for whoever debugs the libraries
+
+
 def main(argv: list[str] | None = None) -> None:
     """Entry point of the ``mjx-emp`` console script: one parser, every command a subcommand
     (``mjx-emp --help`` lists them, ``mjx-emp COMMAND --help`` shows every flag).
 
-    Compiled programs are cached under ``default_compile_cache()``; ``--no-compile-cache``
-    (any command) compiles afresh. Bad input exits 2 naming the field (:func:`main_guarded`).
+    Compiled programs are cached (:mod:`mjx_emp.run.compile_cache`; ``--no-compile-cache``
+    compiles afresh). Bad input exits 2 naming the field (:func:`exit_codes`).
     """
     argv = use_compile_cache(sys.argv[1:] if argv is None else list(argv))
     noise = quiet_libraries()  # orbax's thread tracebacks and asyncio's exit noise go to a log file
-
-    def parse_and_run(args: list[str]) -> None:
-        command, exp = parse(canonical_args(args))  # imports no mujoco
-        tracking = getattr(exp, "tracking", None)
-        if args[:1] == ["render"]:
-            configure_headless_gl()  # before anything imports mujoco
-        elif tracking is not None and tracking.on() and tracking.video_steps:
-            prefer_headless_gl()  # the trackers' video at the end
-        try:
-            command(exp)
-        finally:
-            noise.write(run_folder(exp))  # RUN_DIR/library.log, for whoever debugs the libraries
-
-    main_guarded(parse_and_run, argv)
+    with exit_codes():
+        run(argv, noise)
 
 
 if __name__ == "__main__":

@@ -1,6 +1,6 @@
 """Every error type the library raises on purpose, each with a message a user can act on.
 
-The CLI maps them to exit codes (cli.main_guarded): bad input and unusable
+The CLI maps them to exit codes (cli.exit_codes): bad input and unusable
 checkpoints exit 2, a diverged run or a failed checkpoint write 1, a failed file write 1 (2 for a
 path the user chose), no offscreen GL 3, a run stopped by SIGINT or SIGTERM 128 + the signal's
 number (130, 143).

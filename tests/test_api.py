@@ -53,7 +53,8 @@ def test_the_package_exports_the_api_without_loading_jax():
 def test_the_cli_imports_helps_lists_and_reports_without_loading_jax():
     """`import mjx_emp.cli`, `--help` (the CLI's, a command's and a preset's), `presets` and
     `report` load none of JAX, MuJoCo, orbax, flax or optax: they answer at once; JAX loads with
-    a command's handler."""
+    a command's handler. Parsing a command loads none either: `render` chooses MuJoCo's OpenGL
+    after the parse, before MuJoCo is imported."""
     code = """
 import sys
 import mjx_emp.cli as cli
@@ -64,6 +65,8 @@ for argv in (["--help"], ["sweep", "--help"], ["train", "ant-field-k1-cpu", "--h
         cli.main()
     except SystemExit as stop:
         assert stop.code in (0, None), (argv, stop.code)
+for argv in (["render", "some-run"], ["train", "point-mass-k1", "--epochs", "3"]):
+    cli.parse(cli.canonical_args(argv))  # parsed before the OpenGL set-up, so it must not import MuJoCo
 heavy = [name for name in ("jax", "mujoco", "orbax", "flax", "optax") if name in sys.modules]
 assert not heavy, heavy
 """

@@ -24,7 +24,8 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from mjx_emp.algos.skills.agent import SkillAgent, SkillState
+from mjx_emp.algos.skills.agent import SkillAgent
+from mjx_emp.algos.skills.state import SkillState
 from mjx_emp.checks import compile_identity
 from mjx_emp.counters import StepCounter
 from mjx_emp.envs.env import EnvState

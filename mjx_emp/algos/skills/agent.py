@@ -12,26 +12,29 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from collections.abc import Callable
-from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
-from flax import struct
 
-from mjx_emp.algos.skills import objectives as obj
 from mjx_emp.algos.skills.config import (
     SkillConfig,
 )
+from mjx_emp.algos.skills.evaluation import SkillEvaluation
 from mjx_emp.algos.skills.methods import METHODS, ModelContext, ModelInfo, SkillMethod
+from mjx_emp.algos.skills.policies import SkillPolicies
+from mjx_emp.algos.skills.state import (
+    SKILL_EPOCH_TRACE,
+    IterationStats,
+    SkillModel,
+    SkillState,
+    SkillTransition,
+)
 from mjx_emp.checks import compile_identity
 from mjx_emp.counters import StepCounter
-from mjx_emp.envs.env import Env, EnvState, make_env
-from mjx_emp.learners.common import all_finite
-from mjx_emp.learners.sac import SAC, SACBatch, SACInfo, SACLearner
-from mjx_emp.metrics import epoch_header
+from mjx_emp.envs.env import Env, make_env
+from mjx_emp.learners.sac import SACBatch, SACInfo, SACLearner
 from mjx_emp.replay import (
     ReplayBuffer,
     flatten_rows,
@@ -39,71 +42,13 @@ from mjx_emp.replay import (
     replay_insert,
     replay_sample,
 )
-from mjx_emp.rollout.flat import FlatState, flat_init, flat_rollout
+from mjx_emp.rollout.flat import flat_init, flat_rollout
 from mjx_emp.shards import ShardAxes, mean_gradients, shard_all, shard_mean, shard_sum
 from mjx_emp.tracing import count_trace
 
-SKILL_EPOCH_TRACE = "skills.train_epoch"
-"""Name under which :mod:`mjx_emp.tracing` counts traces (compiles) of a flat learner's epoch."""
-Params = Any
-
-
-@struct.dataclass
-class SkillTransition:
-    """One stored step: where its episode began, the step itself, and the skill it served."""
-
-    s0: jax.Array
-    obs: jax.Array
-    skill: jax.Array
-    action: jax.Array
-    next_obs: jax.Array
-
-
-@struct.dataclass
-class SkillModel:
-    """The method's own model and its Adam state; ``log_lam`` and ``lam_opt`` are METRA's
-    dual variable (kept, unused, by the others so that every method has one state shape)."""
-
-    params: Params
-    opt: optax.OptState
-    log_lam: jax.Array
-    lam_opt: optax.OptState
-
-
-@struct.dataclass
-class SkillState:
-    """Everything a flat skill learner carries between epochs."""
-
-    sac: SACLearner
-    model: SkillModel
-    replay: ReplayBuffer
-    rollout: FlatState
-    key: jax.Array
-    epoch: jax.Array
-    env_steps: StepCounter
-
-
-@struct.dataclass
-class IterationStats:
-    """Per iteration of an epoch (stacked [iterations]); NaN where nothing was learnt or ended."""
-
-    env_steps: jax.Array
-    learned: jax.Array
-    sac: SACInfo
-    model_loss: jax.Array
-    reward: jax.Array
-    posterior_std: jax.Array
-    dual_lambda: jax.Array
-    constraint: jax.Array
-    episodes: jax.Array
-    displacement: jax.Array
-    flip_resets: jax.Array
-
-
-
 
 @dataclasses.dataclass(frozen=True)
-class SkillAgent:
+class SkillAgent(SkillPolicies, SkillEvaluation):
     """Static side of one flat skill learner's config; hashes by the config without its epoch
     count (a jit argument, :func:`~mjx_emp.checks.compile_identity`)."""
 
@@ -131,55 +76,6 @@ class SkillAgent:
     def method(self) -> str:
         """The learner's name, for reports."""
         return self.skill_method.name
-
-    # ---- networks -------------------------------------------------------------------
-    @functools.cached_property
-    def sac(self) -> SAC:
-        c = self.cfg
-        return SAC(hidden=tuple(c.hidden), action_size=self.env.action_size, actor_lr=c.actor_lr,
-                   critic_lr=c.critic_lr, alpha_lr=c.alpha_lr, init_alpha=c.init_alpha, tau=c.tau,
-                   target_entropy=-c.target_entropy_scale * self.env.action_size, shard_axes=self.shard_axes)
-
-    @property
-    def descriptor_size(self) -> int:
-        return self.env.feature_size + self.env.goal_size
-
-    @functools.cached_property
-    def model_net(self):
-        """DIAYN/HIDIO: posterior q(z|...); DADS: mean of the descriptor's change; METRA: phi."""
-        return self.skill_method.model_net(tuple(self.cfg.hidden), self.cfg.skill_dim, self.descriptor_size)
-
-    def model_input(self, batch: SkillTransition) -> jax.Array:
-        """What the model sees of a minibatch (at the state it judges)."""
-        return self.skill_method.model_input(self.env, batch)
-
-    def policy_input(self, obs: jax.Array, s0: jax.Array, skill: jax.Array) -> jax.Array:
-        """pi's and Q's input: the state's descriptor and the skill."""
-        return jnp.concatenate([obj.descriptor(self.env, obs, s0), skill], axis=-1)
-
-    def sample_skill(self, key: jax.Array, shape: tuple[int, ...] = ()) -> jax.Array:
-        """z from the prior: uniform on [-1, 1]^d, or for METRA a direction on the unit sphere."""
-        return self.skill_method.sample_skill(key, shape, self.cfg.skill_dim)
-
-    def start(self, _: Any, key: jax.Array) -> tuple[EnvState, jax.Array]:
-        """A new episode: the initial state and a skill from the prior."""
-        env_key, skill_key = jax.random.split(key)
-        return self.env.reset(env_key), self.sample_skill(skill_key)
-
-    def explore(self, actor: Params, obs, s0, skill, key) -> jax.Array:
-        """The stochastic SAC policy (training collection)."""
-        return self.sac.sample(actor, self.policy_input(obs, s0, skill), key)[0]
-
-    def greedy(self, actor: Params, obs, s0, skill, key) -> jax.Array:
-        """The deterministic policy tanh(mean) (evaluation)."""
-        del key
-        return self.sac.greedy(actor, self.policy_input(obs, s0, skill))
-
-    def greedy_policy(self, state: SkillState) -> Callable[[jax.Array, jax.Array, jax.Array], jax.Array]:
-        """The greedy skill-conditioned policy, (obs [B, obs], s0 [B, obs], skill [B, d]) -> action:
-        ``s0`` is the observation where the skill began (its descriptor counts from there)."""
-        actor = state.sac.actor
-        return jax.vmap(lambda obs, s0, skill: self.greedy(actor, obs, s0, skill, None))
 
     # ---- state ----------------------------------------------------------------------
     @functools.cached_property
@@ -285,95 +181,6 @@ class SkillAgent:
         """One epoch as one jitted call; returns per-iteration stats."""
         return _jit_train_epoch(self, state)
 
-    # ---- evaluation and reports -----------------------------------------------------
-    def skill_paths(self, state: SkillState, key: jax.Array, skills: int = 48) -> tuple[np.ndarray, np.ndarray]:
-        """h(s) along ``skills`` greedy skills from the prior, each from the initial state.
-
-        Returns positions [n + 1, skills, d] (the start, then every action) and a mask that
-        is False after a reset cut a skill short (METRA's coverage count reads these).
-        """
-        positions, mask = _jit_skill_paths(self, state, key, skills)
-        return np.asarray(positions), np.asarray(mask)
-
-    def _skill_paths(self, state: SkillState, key: jax.Array, skills: int):
-        rollout = flat_init(self.env, self.start, None, key, skills)
-        _, steps = flat_rollout(self.env, self.greedy, state.sac.actor, self.start, None, rollout,
-                                self.cfg.n, self.cfg.n)
-        alive = jnp.cumsum(steps.cut, axis=0) == 0
-        start = self.env.goal_of_obs(jnp.asarray(self.initial_obs))
-        positions = jnp.concatenate([jnp.broadcast_to(start, (1, skills, start.shape[-1])),
-                                     self.env.goal_of_obs(steps.next_obs)])
-        return positions, jnp.concatenate([jnp.ones((1, skills), bool), alive])
-
-    def record_skills(self, state: SkillState, key: jax.Array, steps: int) -> tuple[np.ndarray, np.ndarray]:
-        """One environment running greedy skills from the prior, one after another, each from
-        a fresh start state: its joint positions [steps, nq] and mocap bodies [steps, nmocap, 3]
-        after every primitive step (what ``mjx-emp render`` draws), in one jitted scan."""
-        qpos, mocap = _jit_record_skills(self, state, key, steps)
-        return np.asarray(qpos), np.asarray(mocap)
-
-    def _record_skills(self, state: SkillState, key: jax.Array, steps: int):
-        def one_step(rollout, _):
-            rollout, _ = flat_rollout(self.env, self.greedy, state.sac.actor, self.start, None, rollout, 1, self.cfg.n)
-            return rollout, (rollout.env.data.qpos[0], rollout.env.data.mocap_pos[0])
-
-        _, (qpos, mocap) = jax.lax.scan(one_step, flat_init(self.env, self.start, None, key, 1), None, length=steps)
-        return qpos, mocap
-
-    def posterior_std(self, state: SkillState, key: jax.Array, rows: int = 4096) -> float | None:
-        """DIAYN and HIDIO: the mean standard deviation of q(z | ...) over ``rows`` replayed
-        transitions (Levy et al.'s diagnostic: it stays large when skills overlap); None for
-        the other methods or an empty replay."""
-        if not self.skill_method.has_posterior or int(state.replay.size) == 0:
-            return None
-        batch = replay_sample(state.replay, key, rows)
-        _, log_std = self.model_net.apply(state.model.params, self.model_input(batch))
-        return float(jnp.exp(log_std).mean())
-
-    def metrics(self, state: SkillState, stats: IterationStats, seconds: float) -> dict[str, Any]:
-        """One JSON-ready line of per-epoch metrics."""
-        s = jax.tree.map(np.asarray, stats)
-
-        def mean(values) -> float | None:
-            values = np.asarray(values)[np.isfinite(values)]
-            return float(values.mean()) if values.size else None
-
-        header = epoch_header(state, float(s.env_steps.sum()), seconds)
-        return {
-            **header, "algorithm": self.method, "learned_iterations": int(s.learned.sum()),
-            "critic_loss": mean(s.sac.critic_loss), "actor_loss": mean(s.sac.actor_loss), "alpha": mean(s.sac.alpha),
-            "entropy": mean(s.sac.entropy), "model_loss": mean(s.model_loss), "reward": mean(s.reward),
-            "posterior_std": mean(s.posterior_std), "dual_lambda": mean(s.dual_lambda),
-            "constraint": mean(s.constraint), "episodes": int(s.episodes.sum()),
-            "displacement": mean(np.where(s.episodes > 0, s.displacement, np.nan)),
-            "flip_resets": int(s.flip_resets.sum()),
-        }
-
-    def divergence(self, state: SkillState, stats: IterationStats) -> str | None:
-        """Why this epoch must not be kept (a non-finite loss or parameter), or None."""
-        s = jax.tree.map(np.asarray, stats)
-        learned = s.learned.astype(bool)
-        for name, values in (("critic loss", s.sac.critic_loss), ("actor loss", s.sac.actor_loss),
-                             ("model loss", s.model_loss)):
-            if not np.isfinite(values[learned]).all():
-                return f"the {self.method} {name} is not finite"
-        if not bool(all_finite((state.sac, state.model))):
-            return "a network parameter or optimizer state is not finite"
-        return None
-
-    def describe(self, metrics: dict) -> str:
-        """A short human-readable summary of an epoch's metrics."""
-        def show(name):
-            value = metrics[name]
-            return "-" if value is None else f"{value:.3g}"
-
-        extra = self.skill_method.reports
-        tail = f"  {extra.replace('_', ' ')} {show(extra)}" if extra else ""
-        return (f"{metrics['env_steps']:.3g} env steps  {metrics['env_steps_per_s']:.3g} steps/s  "
-                f"reward {show('reward')}  displacement {show('displacement')}  alpha {show('alpha')}{tail}")
-
 
 _jit_init = jax.jit(SkillAgent._init, static_argnums=0)
 _jit_train_epoch = jax.jit(SkillAgent._train_epoch, static_argnums=0, donate_argnums=1)
-_jit_skill_paths = jax.jit(SkillAgent._skill_paths, static_argnums=(0, 3))
-_jit_record_skills = jax.jit(SkillAgent._record_skills, static_argnums=(0, 3))
