@@ -139,9 +139,10 @@ def test_phase2_of_a_run_directory_is_its_own_task_with_only_the_named_fields_re
     assert exp.own_task == ("epochs",)
     skills = all_presets()["point-mass-k1"][1]
     task = phase2_preset_for(skills)
-    resolved, record = own_task(exp, skills, {"preset": "own", "overrides": {"epochs": 3}})
+    asked = {"preset": "own", "overrides": {"epochs": 3}, "command": f"mjx-emp phase2 own {missing} --epochs 3"}
+    resolved, record = own_task(exp, skills, asked)
     assert resolved.config == dataclasses.replace(PHASE2_PRESETS[task][2], epochs=3) and resolved.own_task is None
-    assert record == {"preset": task, "overrides": {"epochs": 3}}
+    assert record == {"preset": task, "overrides": {"epochs": 3}, "command": f"mjx-emp phase2 {task} {missing} --epochs 3"}
 
 
 def test_help_explains_fields():

@@ -34,7 +34,7 @@ from mjx_emp.commands import (
 from mjx_emp.errors import ConfigError, RenderError
 from mjx_emp.phase2.build import make_phase2_trainer
 from mjx_emp.phase2.config import Phase2Config
-from mjx_emp.phase2.presets import PHASE2_PRESETS, phase2_preset_for
+from mjx_emp.phase2.presets import OWN_TASK, PHASE2_PRESETS, phase2_preset_for
 from mjx_emp.run import loop
 from mjx_emp.run.checkpoint import Checkpoints
 from mjx_emp.run.devices import ShardedAgent, choose_devices, shard_slice
@@ -322,7 +322,8 @@ def train_phase2(exp: Phase2Experiment, film: Film | None = None, record: dict |
 
 def own_task(exp: Phase2Experiment, skills_cfg, record: dict | None) -> tuple[Phase2Experiment, dict | None]:
     """``exp`` as the run's own phase-2 task (:func:`mjx_emp.phase2.presets.phase2_preset_for`)
-    with the fields ``exp.own_task`` names taken from ``exp.config``; ``record`` names that task."""
+    with the fields ``exp.own_task`` names taken from ``exp.config``; ``record`` names that task,
+    and its command names it in place of ``own``."""
     preset = phase2_preset_for(skills_cfg)
     if preset is None:
         raise ConfigError(f"run_dir: no phase-2 preset is built on env={skills_cfg.env} n={tuple(skills_cfg.n)}; "
@@ -331,7 +332,11 @@ def own_task(exp: Phase2Experiment, skills_cfg, record: dict | None) -> tuple[Ph
     given = {name: getattr(exp.config, name) for name in exp.own_task}
     cfg = dataclasses.replace(PHASE2_PRESETS[preset][2], **given)
     print(f"phase 2 task: {preset} (the run's own){' with ' + ', '.join(exp.own_task) if given else ''}", flush=True)
-    return dataclasses.replace(exp, config=cfg, own_task=None), record and {**record, "preset": preset}
+    if record is not None:  # the task picked, and the command that names it
+        command = record.get("command")
+        record = {**record, "preset": preset, "command": command.replace(f" phase2 {OWN_TASK} ", f" phase2 {preset} ", 1)
+                  if isinstance(command, str) else command}
+    return dataclasses.replace(exp, config=cfg, own_task=None), record
 
 
 def load_phase2(phase2_dir: Path, fallback: bool = False, stops: dict | None = None, field: str = "run_dir",
