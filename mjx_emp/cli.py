@@ -115,9 +115,7 @@ def run_command(name: str, exp: Any, **extra: Any) -> Any:
     only now (after the OpenGL set-up); the catalogue and the reports, which need no JAX, run here."""
     if name in ("presets", "report"):
         return (list_presets if name == "presets" else report_command)(exp)
-    from mjx_emp.handlers import (
-        HANDLERS,  # deferred: JAX and MuJoCo load once a command runs
-    )
+    from mjx_emp.handlers import HANDLERS  # deferred: JAX loads here
 
     return HANDLERS[name](exp, **extra)
 

@@ -66,12 +66,15 @@ from mjx_emp.run.tracking import Film, Trackers, open_trackers
 def _train_run(program, state, run_dir: Path, keep_checkpoints: int, tracking: Tracking,
                on_epoch: Callable[[dict], None] | None = None, film: Film | None = None):
     """One run through the training loop (:func:`mjx_emp.run.loop.train`), which owns its
-    checkpoints: each epoch's metrics go to the progress display, to the trackers ``tracking``
-    asks for and to ``on_epoch``; at the end the trackers get ``film``'s video."""
+    checkpoints, after the run's config.json is written (by the lead, with several hosts): each
+    epoch's metrics go to the progress display, to the trackers ``tracking`` asks for and to
+    ``on_epoch``; at the end the trackers get ``film``'s video."""
+    if is_lead():
+        write_config(run_dir, program.cfg)
     with open_trackers(tracking, run_dir, config_json(program.cfg)) as trackers:
         with progress_reporter(program.cfg.epochs, epoch_of(state), program.describe) as show:
             state = loop.train(program, state, [Member(program, run_dir)], keep_checkpoints,
-                          (show, trackers and trackers.log, on_epoch))
+                               (show, trackers and trackers.log, on_epoch))
         if trackers is not None and film is not None and tracking.video_steps:
             _film_for_trackers(trackers, film, program, state, run_dir, tracking.video_steps)
         return state
@@ -136,10 +139,8 @@ def train(exp: TrainExperiment, on_epoch: Callable[[dict], None] | None = None, 
     wait_for_all("mjx-emp: every process checked the run directory")  # before the lead writes into it
     print(f"run directory: {run_dir}", flush=True)
     with run_lock(run_dir, "run_dir"):
-        if is_lead():  # with several hosts, the lead writes
-            if record is not None:
-                write_run_record(run_dir, record)
-            write_config(run_dir, trainer.cfg)
+        if record is not None and is_lead():
+            write_run_record(run_dir, record)
         if cfg.shards > 1:
             print(f"split into {cfg.shards} shards on {trainer.num_devices} device(s)", flush=True)
         return _train_run(trainer, trainer.init(), run_dir, exp.keep_checkpoints, exp.tracking, on_epoch, film)
@@ -236,7 +237,6 @@ def _resume(exp: ResumeExperiment, load: Callable, start_over: Callable, film: F
             print(f"{run_dir} was stopped before its first checkpoint; starting it over from its {CONFIG_FILE}",
                   flush=True)
             keep_metrics_through(run_dir / METRICS_FILE, 0)
-            write_config(run_dir, trainer.cfg)
             return _train_run(trainer, trainer.init(), run_dir, exp.keep_checkpoints, exp.tracking, film=film)
         trainer, epoch, state = load(run_dir, exp.fallback, resumed_stops(exp), field="resume")
         if trainer.cfg.epochs < epoch:  # before anything is rewritten
@@ -247,7 +247,6 @@ def _resume(exp: ResumeExperiment, load: Callable, start_over: Callable, film: F
                               f"budget, or 0 to lift it; got {exp.max_env_steps}")
         print(f"resuming {run_dir} from epoch {epoch}", flush=True)
         keep_metrics_through(run_dir / METRICS_FILE, epoch)
-        write_config(run_dir, trainer.cfg)
         return _train_run(trainer, state, run_dir, exp.keep_checkpoints, exp.tracking, film=film)
 
 
@@ -316,7 +315,6 @@ def train_phase2(exp: Phase2Experiment, film: Film | None = None, record: dict |
         write_atomically(out / SKILLS_FILE, json.dumps(config_json(skills.cfg), indent=1))
         if record is not None:
             write_run_record(out, record)
-        write_config(out, trainer.cfg)
         return _train_run(trainer, trainer.init(skills_state), out, exp.keep_checkpoints, exp.tracking, film=film)
 
 

@@ -74,10 +74,10 @@ def train_seeds(exp: TrainExperiment, record: dict | None = None) -> Any:
     base = exp.run_dir or store.default_run_dir(exp.config)
     dirs = [store.fresh_run_dir(path, "run_dir", "a run", "mjx-emp train") for path in store.seed_run_dirs(base, exp.seeds)]
     print(f"run directories: {', '.join(str(d) for d in dirs)}", flush=True)
+    together = {"seed_group": [str(d) for d in dirs]}  # a resume continues them together (resume_seeds)
     with contextlib.ExitStack() as locks:
         for agent, run_dir in zip(agents, dirs):
             locks.enter_context(store.run_lock(run_dir, "run_dir"))
-            together = {"seed_group": [str(d) for d in dirs]}  # a resume continues them together (resume_seeds)
             store.write_run_record(run_dir, {**(record or run_record(None, {})), **together})
             store.write_config(run_dir, agent.cfg)
         group = SeedGroup(agents[0], tuple(exp.seeds))
@@ -97,7 +97,6 @@ def resume_seeds(dirs: list[Path], configs: list[Any], keep_checkpoints: int = 3
     group the resumed seeds end where an uninterrupted group would. ``configs`` are the seeds'
     configs (epochs and step budget may differ from the runs' own, as for ``mjx-emp resume``).
     """
-
     agents = [make_agent(cfg) for cfg in configs]
     group = SeedGroup(agents[0], tuple(cfg.seed for cfg in configs))
     members = [loop.Member(agent, Path(run_dir)) for agent, run_dir in zip(agents, dirs)]
