@@ -122,7 +122,7 @@ def open_loop_gait_search(env, candidates: int = 300, period: int = 2, actions: 
             d.ctrl[:] = gait[t % period]
             for _ in range(env.action_repeat):
                 mujoco.mj_step(m, d)
-            upright &= bool(env.upright(d))
+            upright &= bool(env.torso.upright(d.qpos))
         if upright:
             kept += 1
             best = max(best, float(np.linalg.norm(d.qpos[list(env.goal_qpos)] - env.home_qpos[list(env.goal_qpos)])))

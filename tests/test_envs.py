@@ -95,8 +95,8 @@ def test_nan_guard_is_per_batch_member():
 def upside_down(env, state):
     """``state`` with the torso rotated half a turn about x (a free torso) or about y (pitch)."""
     qpos = state.data.qpos
-    if env.torso_quat is not None:
-        qpos = qpos.at[env.torso_quat : env.torso_quat + 4].set(jnp.array([0.0, 1.0, 0.0, 0.0]))
+    if env.torso.free:
+        qpos = qpos.at[env.torso.quat : env.torso.quat + 4].set(jnp.array([0.0, 1.0, 0.0, 0.0]))
         qpos = qpos.at[2].set(1.0)
     else:
         qpos = qpos.at[2].set(jnp.pi)
@@ -114,30 +114,30 @@ def test_an_ant_upside_down_is_reset_home_and_counted_and_an_upright_one_is_not(
     np.testing.assert_allclose(flipped.data.qpos, env.home_qpos, atol=1e-6)  # home pose at the origin
     # Tilted by 60 degrees about x it is still upright.
     tilted = state.data.qpos.at[3:7].set(jnp.array([np.cos(np.pi / 6), np.sin(np.pi / 6), 0.0, 0.0]))
-    assert bool(env.upright(state.data.replace(qpos=tilted)))
+    assert bool(env.torso.upright(tilted))
 
 
 def test_up_axis_reads_the_tilt_from_an_observation_and_decides_upright():
     env = make_env("ant_field")
     obs = env.observe(env.reset_to(jax.random.key(0), jnp.array([1.0, 2.0])))
-    q = env.torso_quat
+    q = env.torso.quat
 
     def turned(angle, scale=1.0):  # the torso rotated by ``angle`` about x; a quaternion of any length
         return obs.at[q : q + 4].set(scale * jnp.array([np.cos(angle / 2), np.sin(angle / 2), 0.0, 0.0]))
 
     angles = np.array([0.0, np.pi / 3, np.pi / 2 - 0.01, np.pi / 2 + 0.01, np.pi])
-    up = [float(env.up_axis_z(turned(a, scale=1.7))) for a in angles]
+    up = [float(env.torso.up_axis_z(turned(a, scale=1.7))) for a in angles]
     np.testing.assert_allclose(up, np.cos(angles), atol=1e-6)
     qpos = jnp.stack([turned(a)[: env.mj_model.nq] for a in angles])
-    assert [bool(env.upright(env.template.replace(qpos=x))) for x in qpos] == [True, True, True, False, False]
+    assert [bool(env.torso.upright(x)) for x in qpos] == [True, True, True, False, False]
     batch = jnp.stack([turned(a) for a in angles])
-    np.testing.assert_allclose(env.up_axis_z(batch), np.cos(angles), atol=1e-6)  # over a batch too
+    np.testing.assert_allclose(env.torso.up_axis_z(batch), np.cos(angles), atol=1e-6)  # over a batch too
     cheetah = make_env("half_cheetah_field")
     pitched = jnp.zeros((5, cheetah.obs_size)).at[:, 2].set(jnp.asarray(angles))  # rooty, the torso's pitch
-    np.testing.assert_allclose(cheetah.up_axis_z(pitched), np.cos(angles), atol=1e-6)
-    assert [bool(cheetah.upright(cheetah.template.replace(qpos=x[: cheetah.mj_model.nq]))) for x in pitched] == [True] * 5
+    np.testing.assert_allclose(cheetah.torso.up_axis_z(pitched), np.cos(angles), atol=1e-6)
+    assert [bool(cheetah.torso.upright(x[: cheetah.mj_model.nq])) for x in pitched] == [True] * 5
     point = make_env("point_mass")
-    np.testing.assert_array_equal(point.up_axis_z(jnp.zeros((3, point.obs_size))), np.ones(3))
+    np.testing.assert_array_equal(point.torso.up_axis_z(jnp.zeros((3, point.obs_size))), np.ones(3))
 
 
 def test_a_half_cheetah_on_its_back_keeps_running():
@@ -156,7 +156,7 @@ def test_unknown_env_names_the_allowed_values():
 def test_half_cheetah_cage_wall_blocks_until_button_opens_it():
     env = make_env("half_cheetah_cage")
     step = jitted_step(env)
-    wall_x = float(env.home_mocap_pos[env.cage.wall_mocap_ids[0]][0])
+    wall_x = float(env.cage.home_mocap_pos[env.cage.wall_mocap_ids[0]][0])
     assert wall_x == 8.0
     # Head tip starts 0.1 short of the wall: driving into it, the torso cannot follow.
     state = env.reset_to(jax.random.key(0), jnp.array([wall_x - 0.85]))
@@ -165,7 +165,7 @@ def test_half_cheetah_cage_wall_blocks_until_button_opens_it():
         key, sub = jax.random.split(key)
         state = step(state, jax.random.uniform(sub, (6,), minval=-1, maxval=1))
         assert float(env.goal_of(state)[0]) < wall_x - 0.5
-    assert not bool(env.cage_open(state))
+    assert not bool(env.cage.is_open(state.data))
     assert float(env.observe(state)[-1]) == 0.0
 
 
@@ -217,32 +217,31 @@ def test_the_button_opens_the_cage_and_the_latch_ignores_presses_outside_it_and_
     step = jitted_step(env)
     center, half = np.asarray(env.cage.button_center), np.asarray(env.cage.button_half_size)
     outside = env.reset_to(jax.random.key(0), jnp.asarray(center - half - 0.3))  # just short of every edge
-    assert not bool(env.cage_open(step(outside, jnp.zeros(env.action_size))))
+    assert not bool(env.cage.is_open(step(outside, jnp.zeros(env.action_size)).data))
     on_button = env.reset_to(jax.random.key(0), jnp.asarray(center))
-    assert not bool(env.cage_open(on_button))  # closed until a step finds the torso on the button
+    assert not bool(env.cage.is_open(on_button.data))  # closed until a step finds the torso on the button
     opened = step(on_button, jnp.zeros(env.action_size))
-    assert bool(env.cage_open(opened)) and bool(env.cage_open_of_obs(env.observe(opened)))
+    assert bool(env.cage.is_open(opened.data)) and bool(env.cage.open_of_obs(env.observe(opened)))
     walls = np.asarray(opened.data.mocap_pos)[list(env.cage.wall_mocap_ids)]
     assert np.all(np.linalg.norm(walls, axis=-1) > 1000.0)  # the walls are moved out of the way
-    assert not bool(env.cage_open(env.reset(jax.random.key(1))))  # a new episode closes the cage again
+    assert not bool(env.cage.is_open(env.reset(jax.random.key(1)).data))  # a new episode closes the cage again
     # carried far from the button (the latch is all that remembers the press), it stays open
     far = opened.data.qpos.at[jnp.asarray(env.goal_qpos)].set(jnp.asarray(center + 10 * half + 5.0))
     moved = opened.replace(data=opened.data.replace(qpos=far))
     for _ in range(3):
         moved = step(moved, jnp.zeros(env.action_size))
-    assert bool(env.cage_open(moved)) and bool(env.cage_open_of_obs(env.observe(moved)))
+    assert bool(env.cage.is_open(moved.data)) and bool(env.cage.open_of_obs(env.observe(moved)))
 
 
 def test_an_observation_with_the_cage_opened_restores_a_state_with_the_walls_gone():
     env = make_env("ant_cage")
     start = np.asarray(env.observe(env.reset(jax.random.key(0))))
-    assert not bool(env.cage_open_of_obs(start))
-    opened = env.obs_with_cage_open(start, True)
-    assert bool(env.cage_open_of_obs(opened)) and not bool(env.cage_open_of_obs(start))  # a copy, start untouched
-    assert bool(env.cage_open(env.restore(jax.random.key(1), jnp.asarray(opened))))
-    assert not bool(env.cage_open(env.restore(jax.random.key(1), jnp.asarray(start))))
-    with pytest.raises(ValueError, match="'ant_field' has no cage"):
-        make_env("ant_field").cage_open_of_obs(start)
+    assert not bool(env.cage.open_of_obs(start))
+    opened = env.cage.obs_opened(start, True)
+    assert bool(env.cage.open_of_obs(opened)) and not bool(env.cage.open_of_obs(start))  # a copy, start untouched
+    assert bool(env.cage.is_open(env.restore(jax.random.key(1), jnp.asarray(opened)).data))
+    assert not bool(env.cage.is_open(env.restore(jax.random.key(1), jnp.asarray(start)).data))
+    assert make_env("ant_field").cage is None and make_env("point_mass").cage is None
 
 
 def test_physics_overrides_reach_the_model_and_bad_ones_name_their_field():

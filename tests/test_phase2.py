@@ -12,6 +12,7 @@ from tiny import TINY, TINY_PHASE2, tiny_after_two_epochs
 
 from mjx_emp.algos.he.presets import PRESETS
 from mjx_emp.algos.registry import all_presets
+from mjx_emp.envs.env import Torso
 from mjx_emp.envs.registry import DOMAINS
 from mjx_emp.errors import ConfigError
 from mjx_emp.nets import AIM_EDGE, LevelParams
@@ -333,11 +334,10 @@ def test_a_cost_of_leaving_the_aim_prior_keeps_the_policy_near_the_aimed_subgoal
 class PlanarEnv:
     """What :func:`attempt_rows` reads of an environment: h(s) is obs[0], the torso pitch obs[1]."""
 
+    torso: Torso = Torso(nq=2, pitch=1)
+
     def goal_of_obs(self, obs):
         return obs[..., :1]
-
-    def up_axis_z(self, obs):
-        return np.cos(obs[..., 1])
 
 
 def test_attempt_rows_follow_each_first_episode_attempt_by_attempt():

@@ -253,7 +253,7 @@ def test_restore_round_trips_observations():
         np.testing.assert_allclose(env.observe(env.restore(jax.random.key(1), obs)), obs, rtol=1e-6)
     env = make_env("ant_cage")
     opened = env.observe(env.reset(jax.random.key(0))).at[-1].set(1.0)
-    assert bool(env.cage_open(env.restore(jax.random.key(0), opened)))
+    assert bool(env.cage.is_open(env.restore(jax.random.key(0), opened).data))
 
 
 @pytest.mark.parametrize(
@@ -530,7 +530,7 @@ def test_a_flip_cost_scores_a_half_cheetah_left_on_its_back_as_an_absorbing_fail
     row without the cost, keep the paper's target."""
     env, gamma, cost = make_env("half_cheetah_field"), 0.9, 2.0
     start = env.observe(env.reset_to(jax.random.key(0), jnp.array([0.0])))
-    obs = jnp.stack([start, start.at[env.torso_pitch].set(np.pi)])  # upright, on its back
+    obs = jnp.stack([start, start.at[env.torso.pitch].set(np.pi)])  # upright, on its back
     rows = GoalTransition(obs=jnp.stack([start, start]), goal=jnp.full((2, 1), 3.0),
                           action=jnp.zeros((2, env.action_size)), next_obs=obs, reached=jnp.zeros(2, bool))
     plain = one_step_backup(rows, env, 1.0, gamma)
@@ -546,7 +546,7 @@ def test_tilt_cost_lowers_level_zero_rewards_by_the_torso_tilt():
     env = make_env("ant_field")
     sigma, gamma, cost = 1.0, 0.9, 0.5
     home = env.observe(env.reset_to(jax.random.key(0), jnp.array([0.0, 0.0])))
-    q = env.torso_quat
+    q = env.torso.quat
     angles = np.array([0.0, np.pi / 2, np.pi])  # upright, on its side, upside down
     obs = jnp.stack([home.at[:2].set(jnp.array([float(i), 0.0])).at[q : q + 4].set(
         jnp.array([np.cos(a / 2), np.sin(a / 2), 0.0, 0.0])) for i, a in enumerate(angles)])

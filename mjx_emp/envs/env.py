@@ -2,7 +2,7 @@
 
 Every function here is pure and works on one environment; ``jax.vmap`` batches it.
 An environment is a frozen description (model, action repeat, goal coordinates,
-optional cage) and an :class:`EnvState` pytree. The goal space of every domain is
+its torso's place in an observation, an optional cage) and an :class:`EnvState` pytree. The goal space of every domain is
 the torso position, read straight from ``qpos``: h(s) = (x, y) for point mass and
 Ant, h(s) = x for Half Cheetah.
 
@@ -53,18 +53,131 @@ class EnvState:
 
 
 @dataclasses.dataclass(frozen=True)
+class Torso:
+    """Where a robot's torso orientation sits in an observation (or qpos: an observation's first
+    entries), and what is read from it: how far it tilts, how fast it turns, its heading.
+
+    ``quat`` is where a free torso's quaternion starts (the Ant), ``pitch`` where a planar torso's
+    pitch hinge is (the Half Cheetah); neither for a robot without one (the point mass). ``nq``
+    is where the velocities start in an observation.
+    """
+
+    nq: int
+    quat: int | None = None
+    pitch: int | None = None
+
+    @property
+    def free(self) -> bool:
+        """Whether the torso turns freely, so that upside down it cannot right itself."""
+        return self.quat is not None
+
+    def up_axis_z(self, obs: jax.Array) -> jax.Array:
+        """World z of the torso's up axis: 1 upright, 0 on its side, -1 upside down; from the free
+        torso's quaternion or the cosine of the planar torso's pitch; 1 without a torso."""
+        if self.pitch is not None:
+            return jnp.cos(obs[..., self.pitch])
+        if self.quat is None:
+            return jnp.ones(jnp.shape(obs)[:-1])
+        w, x, y, z = (obs[..., self.quat + i] for i in range(4))
+        return (w * w - x * x - y * y + z * z) / (w * w + x * x + y * y + z * z)
+
+    def tilt(self, obs: jax.Array) -> jax.Array:
+        """1 - z of the torso's up axis: 0 upright, 1 on its side, 2 on its back. What a level that
+        pays for tilting pays (``tilt_cost``), what the reflex watches, what the flip table reads."""
+        return 1.0 - self.up_axis_z(obs)
+
+    def upright(self, qpos: jax.Array) -> jax.Array:
+        """False once a free torso's up axis points below the horizon (tilted past 90 degrees).
+
+        Always True for robots without a free torso (point mass, Half Cheetah): a planar robot
+        on its back is never reset.
+        """
+        if not self.free:
+            return jnp.ones((), bool)
+        return self.up_axis_z(qpos) > 0.0
+
+    def angular_speed(self, obs: jax.Array) -> jax.Array:
+        """How fast the torso turns, in rad/s: the norm of a free torso's angular velocity or the
+        planar torso's pitch rate; 0 without a torso."""
+        velocity = obs[..., self.nq:]
+        if self.pitch is not None:
+            return jnp.abs(velocity[..., self.pitch])
+        if self.quat is None:
+            return jnp.zeros(jnp.shape(obs)[:-1])
+        # The free torso joint comes first (position, then quaternion in qpos; linear, then angular
+        # velocity in qvel), so its angular velocity is qvel[3:6].
+        return jnp.linalg.norm(velocity[..., 3:6], axis=-1)
+
+    def yaw(self, obs: jax.Array) -> jax.Array:
+        """Heading of a free torso about the world z axis, read from its quaternion."""
+        w, x, y, z = (obs[..., self.quat + i] for i in range(4))
+        return jnp.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+    def without_yaw(self, obs: jax.Array) -> jax.Array:
+        """``obs`` as seen facing +x: quaternion q -> q_yaw^-1 q (sign fixed so w >= 0), world
+        x-y velocity turned by -yaw.
+
+        A free joint's first three velocities are world-frame linear velocity (its angular
+        velocity is already in the torso's frame, so it stays).
+        """
+        obs = jnp.asarray(obs)
+        half = -0.5 * self.yaw(obs)
+        c, s = jnp.cos(half), jnp.sin(half)
+        q = self.quat
+        w, x, y, z = (obs[..., q + i] for i in range(4))
+        # (c, 0, 0, s) * (w, x, y, z), Hamilton product
+        quat = jnp.stack([c * w - s * z, c * x - s * y, c * y + s * x, c * z + s * w], axis=-1)
+        quat = jnp.where(quat[..., :1] < 0.0, -quat, quat)  # q and -q are one rotation: keep w >= 0
+        turned = rotate_xy(obs[..., self.nq : self.nq + 2], 2.0 * half)
+        return obs.at[..., q : q + 4].set(quat).at[..., self.nq : self.nq + 2].set(turned)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
 class Cage:
     """Walls on mocap bodies plus a floor button that opens them.
 
     The button is an axis-aligned box in goal space; when h(s) is inside it the walls
     move ``open_scale`` times further from the origin, which for plane walls means
-    out of reach for good.
+    out of reach for good. An observation in a cage ends with a flag: 1 once the walls are gone.
     """
 
     wall_mocap_ids: tuple[int, ...]
     button_center: tuple[float, ...]
     button_half_size: tuple[float, ...]
+    home_mocap_pos: np.ndarray
+    """Mocap positions of the closed cage (the model's home)."""
+    goal_qpos: tuple[int, ...]
+    """Where h(s) is in qpos: the button is pressed by it."""
     open_scale: float = 1000.0
+
+    def wall_positions(self, is_open: jax.Array) -> jax.Array:
+        """Mocap positions of a closed cage, or of an open one (walls moved far out)."""
+        home = jnp.asarray(self.home_mocap_pos)
+        ids = jnp.asarray(self.wall_mocap_ids)
+        opened = home.at[ids].set(home[ids] * self.open_scale)
+        return jnp.where(is_open, opened, home)
+
+    def press(self, data: mjx.Data) -> mjx.Data:
+        """``data`` with the walls gone if h(s) is on the button (they stay gone once pressed)."""
+        offset = jnp.abs(data.qpos[jnp.asarray(self.goal_qpos)] - jnp.asarray(self.button_center))
+        pressed = jnp.all(offset <= jnp.asarray(self.button_half_size))
+        return data.replace(mocap_pos=jnp.where(pressed, self.wall_positions(True), data.mocap_pos))
+
+    def is_open(self, data: mjx.Data) -> jax.Array:
+        """True once the button has been pressed in this episode."""
+        return jnp.any(data.mocap_pos != jnp.asarray(self.home_mocap_pos))
+
+    @staticmethod
+    def open_of_obs(obs: jax.Array | np.ndarray) -> jax.Array | np.ndarray:
+        """Whether the walls are gone in observations ``obs`` [..., obs_size] (NumPy in, NumPy out)."""
+        return obs[..., -1] > 0.5
+
+    @staticmethod
+    def obs_opened(obs: np.ndarray, is_open: bool) -> np.ndarray:
+        """A copy of the host observation ``obs`` with the cage's walls gone (or standing)."""
+        changed = np.array(obs, copy=True)
+        changed[..., -1] = float(is_open)
+        return changed
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -76,13 +189,10 @@ class Env:
     model: mjx.Model
     template: mjx.Data
     home_qpos: np.ndarray
-    home_mocap_pos: np.ndarray
     action_repeat: int
     goal_qpos: tuple[int, ...]
-    cage: Cage | None
-    torso_quat: int | None = None
-    torso_pitch: int | None = None
-    """Where a planar torso's pitch hinge is in qpos (see :attr:`DomainSpec.torso_pitch`)."""
+    torso: Torso
+    cage: Cage | None = None
     heading_frame: bool = False
     """Express what networks see in the torso's heading frame (robots with a free torso):
     the yaw is taken out of the torso quaternion and the world-frame torso velocity and
@@ -137,42 +247,8 @@ class Env:
         dtype = self.template.qpos.dtype
         data = self.template.replace(qpos=obs[:nq].astype(dtype), qvel=obs[nq : nq + nv].astype(dtype))
         if self.cage is not None:
-            data = data.replace(mocap_pos=self._wall_positions(self.cage_open_of_obs(obs)))
+            data = data.replace(mocap_pos=self.cage.wall_positions(self.cage.open_of_obs(obs)))
         return EnvState(data=data, key=key, **_no_resets())
-
-    def upright(self, data: mjx.Data) -> jax.Array:
-        """False once a free torso's up axis points below the horizon (tilted past 90 degrees).
-
-        Always True for robots without a free torso (point mass, Half Cheetah): a planar
-        robot on its back is never reset.
-        """
-        if self.torso_quat is None:
-            return jnp.ones((), bool)
-        return self.up_axis_z(data.qpos) > 0.0
-
-    def up_axis_z(self, obs: jax.Array) -> jax.Array:
-        """World z of the torso's up axis, read from an observation or qpos (its first entries):
-        1 upright, 0 on its side, -1 upside down; from the free torso's quaternion (Ant) or the
-        cosine of the planar torso's pitch (Half Cheetah); 1 for the point mass."""
-        if self.torso_pitch is not None:
-            return jnp.cos(obs[..., self.torso_pitch])
-        if self.torso_quat is None:
-            return jnp.ones(jnp.shape(obs)[:-1])
-        w, x, y, z = (obs[..., self.torso_quat + i] for i in range(4))
-        return (w * w - x * x - y * y + z * z) / (w * w + x * x + y * y + z * z)
-
-    def torso_angular_speed(self, obs: jax.Array) -> jax.Array:
-        """How fast the torso turns, in rad/s, read from an observation: the norm of a free
-        torso's angular velocity (Ant) or the planar torso's pitch rate (Half Cheetah); 0 for
-        the point mass."""
-        velocity = obs[..., self.mj_model.nq:]
-        if self.torso_pitch is not None:
-            return jnp.abs(velocity[..., self.torso_pitch])
-        if self.torso_quat is None:
-            return jnp.zeros(jnp.shape(obs)[:-1])
-        # The free torso joint comes first (position, then quaternion in qpos; linear, then angular
-        # velocity in qvel), so its angular velocity is qvel[3:6].
-        return jnp.linalg.norm(velocity[..., 3:6], axis=-1)
 
     def step(self, state: EnvState, action: jax.Array) -> EnvState:
         """Apply one primitive action (clipped to [-1, 1]) for ``action_repeat`` physics steps.
@@ -186,9 +262,9 @@ class Env:
             0, self.action_repeat, lambda _, d: mjx.step(self.model, d), data
         )
         if self.cage is not None:
-            data = self._press_button(data)
+            data = self.cage.press(data)
         finite = jnp.isfinite(data.qpos).all() & jnp.isfinite(data.qvel).all()
-        flipped = finite & ~self.upright(data)
+        flipped = finite & ~self.torso.upright(data.qpos)
         key, reset_key = jax.random.split(state.key)
         data = tree_where(finite & ~flipped, data, self.reset(reset_key).data)
         return EnvState(
@@ -205,7 +281,7 @@ class Env:
         """Policy input: qpos, qvel and, in cages, whether the cage is open."""
         parts = [state.data.qpos, state.data.qvel]
         if self.cage is not None:
-            parts.append(self.cage_open(state)[None].astype(state.data.qpos.dtype))
+            parts.append(self.cage.is_open(state.data)[None].astype(state.data.qpos.dtype))
         return jnp.concatenate(parts)
 
     def features(self, obs: jax.Array) -> jax.Array:
@@ -219,7 +295,7 @@ class Env:
         rad/s, beside quaternion entries below 1.
         """
         if self.heading_frame:
-            obs = self._without_yaw(obs)
+            obs = self.torso.without_yaw(obs)
         raw = obs if self.cage is not None else obs[..., self.feature_index(obs.shape[-1])]
         if self.feature_mean is None:
             return raw
@@ -230,31 +306,7 @@ class Env:
         offset = goal - self.goal_of_obs(obs)
         if not self.heading_frame:
             return offset
-        return rotate_xy(offset, -self._yaw(obs))
-
-    def _yaw(self, obs: jax.Array) -> jax.Array:
-        """Heading of the torso about the world z axis, read from its quaternion."""
-        w, x, y, z = (obs[..., self.torso_quat + i] for i in range(4))
-        return jnp.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-
-    def _without_yaw(self, obs: jax.Array) -> jax.Array:
-        """``obs`` as seen facing +x: quaternion q -> q_yaw^-1 q (sign fixed so w >= 0), world
-        x-y velocity turned by -yaw.
-
-        A free joint's first three velocities are world-frame linear velocity (its angular
-        velocity is already in the torso's frame, so it stays).
-        """
-        obs = jnp.asarray(obs)
-        half = -0.5 * self._yaw(obs)
-        c, s = jnp.cos(half), jnp.sin(half)
-        q = self.torso_quat
-        w, x, y, z = (obs[..., q + i] for i in range(4))
-        # (c, 0, 0, s) * (w, x, y, z), Hamilton product
-        quat = jnp.stack([c * w - s * z, c * x - s * y, c * y + s * x, c * z + s * w], axis=-1)
-        quat = jnp.where(quat[..., :1] < 0.0, -quat, quat)  # q and -q are one rotation: keep w >= 0
-        vel = self.mj_model.nq
-        turned = rotate_xy(obs[..., vel : vel + 2], 2.0 * half)
-        return obs.at[..., q : q + 4].set(quat).at[..., vel : vel + 2].set(turned)
+        return rotate_xy(offset, -self.torso.yaw(obs))
 
     def feature_index(self, obs_size: int) -> np.ndarray:
         """Indices of an observation that an open-field network sees (all but h(s))."""
@@ -270,43 +322,6 @@ class Env:
         A NumPy observation gives a NumPy result (constants stay constants under jit).
         """
         return obs[..., np.asarray(self.goal_qpos)]
-
-    def cage_open(self, state: EnvState) -> jax.Array:
-        """True once the button has been pressed in this episode (always False without a cage)."""
-        if self.cage is None:
-            return jnp.zeros((), bool)
-        return jnp.any(state.data.mocap_pos != jnp.asarray(self.home_mocap_pos))
-
-    def cage_open_of_obs(self, obs: jax.Array | np.ndarray) -> jax.Array | np.ndarray:
-        """Whether the walls are gone in observations ``obs`` [..., obs_size]: the flag
-        :meth:`observe` appends in a cage (NumPy in, NumPy out)."""
-        self._require_cage()
-        return obs[..., -1] > 0.5
-
-    def obs_with_cage_open(self, obs: np.ndarray, is_open: bool) -> np.ndarray:
-        """A copy of the host observation ``obs`` with the cage's walls gone (or standing)."""
-        self._require_cage()
-        changed = np.array(obs, copy=True)
-        changed[..., -1] = float(is_open)
-        return changed
-
-    def _require_cage(self) -> None:
-        if self.cage is None:
-            raise ValueError(f"env: {self.name!r} has no cage, so its observations carry no open flag")
-
-    def _wall_positions(self, is_open: jax.Array) -> jax.Array:
-        """Mocap positions of a closed cage, or of an open one (walls moved far out)."""
-        home = jnp.asarray(self.home_mocap_pos)
-        ids = jnp.asarray(self.cage.wall_mocap_ids)
-        opened = home.at[ids].set(home[ids] * self.cage.open_scale)
-        return jnp.where(is_open, opened, home)
-
-    def _press_button(self, data: mjx.Data) -> mjx.Data:
-        cage = self.cage
-        pos = data.qpos[jnp.asarray(self.goal_qpos)]
-        offset = jnp.abs(pos - jnp.asarray(cage.button_center))
-        pressed = jnp.all(offset <= jnp.asarray(cage.button_half_size))
-        return data.replace(mocap_pos=jnp.where(pressed, self._wall_positions(True), data.mocap_pos))
 
 
 def tree_where(condition: jax.Array, on_true, on_false):
@@ -359,7 +374,7 @@ def _home_qpos(m: mujoco.MjModel) -> np.ndarray:
     return np.array(m.key_qpos[key_id] if key_id >= 0 else m.qpos0, dtype=np.float32)
 
 
-def _make_cage(m: mujoco.MjModel, spec: DomainSpec) -> Cage:
+def _make_cage(m: mujoco.MjModel, d: mujoco.MjData, spec: DomainSpec) -> Cage:
     wall_bodies = [b for b in range(m.nbody) if (m.body(b).name or "").startswith("wall_")]
     button = m.site("button")
     dims = spec.goal_qpos
@@ -367,6 +382,8 @@ def _make_cage(m: mujoco.MjModel, spec: DomainSpec) -> Cage:
         wall_mocap_ids=tuple(int(m.body_mocapid[b]) for b in wall_bodies),
         button_center=tuple(float(button.pos[i]) for i in range(len(dims))),
         button_half_size=tuple(float(button.size[i]) for i in range(len(dims))),
+        home_mocap_pos=np.array(d.mocap_pos, dtype=np.float32),
+        goal_qpos=spec.goal_qpos,
     )
 
 
@@ -423,12 +440,10 @@ def make_env(name: str, heading_frame: bool = False, solver_iterations: int = 0,
         model=model,
         template=template,
         home_qpos=_home_qpos(m),
-        home_mocap_pos=np.array(d.mocap_pos, dtype=np.float32),
         action_repeat=spec.action_repeat,
         goal_qpos=spec.goal_qpos,
-        cage=_make_cage(m, spec) if spec.caged else None,
-        torso_quat=spec.torso_quat,
-        torso_pitch=spec.torso_pitch,
+        torso=Torso(nq=m.nq, quat=spec.torso_quat, pitch=spec.torso_pitch),
+        cage=_make_cage(m, d, spec) if spec.caged else None,
         heading_frame=heading_frame,
     )
     if spec.standardize:

@@ -66,7 +66,7 @@ def step_reward(goal: jax.Array, next_obs: jax.Array, env: Env, sigma: float, ti
     reward = gce.goal_conditioned_reward(goal, env.goal_of_obs(next_obs), sigma)
     if tilt_cost == 0.0:
         return reward
-    return reward - tilt_cost * (1.0 - env.up_axis_z(next_obs))
+    return reward - tilt_cost * env.torso.tilt(next_obs)
 
 
 def one_step_backup(batch: GoalTransition, env: Env, sigma: float, gamma: float, tilt_cost: float = 0.0,
@@ -87,7 +87,7 @@ def flipped(cut: jax.Array | None, next_obs: jax.Array, env: Env, flip_cost: flo
     down (a Half Cheetah on its back, which is never reset). None: no row can be one."""
     if flip_cost == 0.0:
         return cut
-    down = env.up_axis_z(next_obs) < 0.0
+    down = env.torso.up_axis_z(next_obs) < 0.0
     return down if cut is None else cut | down
 
 

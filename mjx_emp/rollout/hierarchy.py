@@ -220,9 +220,8 @@ def _reflex(hierarchy: Hierarchy, root: jax.Array, issued_obs: list[jax.Array], 
     batch = last_obs.shape[0]
     if hierarchy.reflex_tilt == 0.0:
         return jnp.zeros(batch, bool)
-    env = hierarchy.env
-    tilt_at_issue = 1.0 - jax.vmap(env.up_axis_z)(jnp.stack(issued_obs)[root])
-    return (1.0 - jax.vmap(env.up_axis_z)(last_obs) > hierarchy.reflex_tilt) & (tilt_at_issue <= hierarchy.reflex_tilt)
+    tilt = hierarchy.env.torso.tilt
+    return (tilt(last_obs) > hierarchy.reflex_tilt) & (tilt(jnp.stack(issued_obs)[root]) <= hierarchy.reflex_tilt)
 
 
 def _scan_step(hierarchy, params, start, start_params, state: RolloutState, _):

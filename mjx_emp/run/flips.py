@@ -85,7 +85,7 @@ def in_first_episode(rows: Transition, first_end: np.ndarray) -> np.ndarray:
 
 def tilt(env, obs) -> np.ndarray:
     """1 - z of the torso's up axis: 0 upright, 1 on its side, 2 on its back."""
-    return 1.0 - np.asarray(env.up_axis_z(np.asarray(obs)))
+    return np.asarray(env.torso.tilt(np.asarray(obs)))
 
 
 def flip_steps(env, episodes: FirstEpisodes) -> np.ndarray:
@@ -167,7 +167,7 @@ def before_flip(env, episodes: FirstEpisodes, flipped_at: np.ndarray) -> dict:
     :func:`warning` for each."""
     low = episodes.levels[0]
     obs = np.asarray(low.obs)
-    tilts, spins = tilt(env, obs), np.asarray(env.torso_angular_speed(obs))
+    tilts, spins = tilt(env, obs), np.asarray(env.torso.angular_speed(obs))
     flipped = flipped_at >= 0
     end = np.where(flipped, flipped_at, episodes.first_end)
     upright_steps = in_first_episode(low, episodes.first_end)[:, ~flipped]
@@ -264,7 +264,7 @@ def attempt_rows(env, top: Transition, first_end: np.ndarray, attempts: int) -> 
     goal = np.asarray(top.goal)
     before = np.linalg.norm(np.asarray(env.goal_of_obs(np.asarray(top.obs))) - goal, axis=-1)
     after = np.linalg.norm(np.asarray(env.goal_of_obs(np.asarray(top.next_obs))) - goal, axis=-1)
-    down_before, down_after = (np.asarray(env.up_axis_z(top.obs)) < 0, np.asarray(env.up_axis_z(top.next_obs)) < 0)
+    down_before, down_after = (np.asarray(env.torso.up_axis_z(top.obs)) < 0, np.asarray(env.torso.up_axis_z(top.next_obs)) < 0)
     rows = []
     for i in range(attempts):
         at = ended & (index == i)
