@@ -1,4 +1,7 @@
-"""``mjx-emp`` command line: bad input exits 2 naming the field; the main job runs."""
+"""``mjx-emp`` command line: bad input exits 2 naming the field; the main job runs.
+
+The commands run in this process through the command line's entry point (``tiny.cli``); the
+first test runs bad input and the main job as processes of their own, as a user's shell does."""
 
 import json
 import os
@@ -6,12 +9,18 @@ import subprocess
 import sys
 
 import pytest
+from tiny import cli, run_cli
 
 
-def cli(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", "mjx_emp.cli", *args], capture_output=True, text=True, timeout=600
-    )
+def test_a_process_exits_2_with_one_line_naming_the_field_and_0_after_the_main_job():
+    refused = run_cli("train", "point-mass-k1", "--eps", "0")
+    assert refused.returncode == 2 and refused.stdout == ""
+    assert refused.stderr == "mjx-emp: invalid configuration: eps: every entry must be > 0; got (0.0,)\n"
+    typo = run_cli("trian")
+    assert typo.returncode == 2 and "train" in typo.stderr
+    done = run_cli("rollout", "--n", "5", "--eps", "0.3", "--batch-size", "8", "--steps", "10", "--calls", "1",
+                   "--hidden", "16")
+    assert done.returncode == 0 and json.loads(done.stdout)["primitive_steps"] == 8 * 10, done.stderr
 
 
 @pytest.mark.parametrize(

@@ -13,7 +13,7 @@ import subprocess
 from pathlib import Path
 
 import pytest
-from tiny import TINY1, run_cli
+from tiny import TINY1, cli, run_cli
 
 from mjx_emp.commands import ResumeExperiment, TrainExperiment
 from mjx_emp.errors import ConfigError
@@ -46,6 +46,14 @@ def one_line(stderr: str) -> str:
     lines = [line for line in stderr.splitlines() if line.strip()]
     assert len(lines) == 1 and "Traceback" not in stderr, stderr[-2000:]
     return lines[0]
+
+
+def each_command(commands) -> list:
+    """(command, result) of each command line: the first run as a process of its own (what a
+    user's shell starts), the others in this process through the same entry point (``tiny.cli``),
+    but for render, which chooses OpenGL before MuJoCo loads and so needs a process of its own."""
+    return [(command, (run_cli if i == 0 or command[0] == "render" else cli)(*command))
+            for i, command in enumerate(commands)]
 
 
 def test_no_write_replaces_what_is_not_a_regular_file(tmp_path):
@@ -88,8 +96,7 @@ def test_every_output_path_of_the_cli_refuses_a_special_file_in_one_line(run_dir
                     ("report", str(spec), "--into", str(path), "--results", str(run_dir / "none.jsonl")),
                     ("report", str(spec), "--figure", str(path), "--results", str(run_dir / "none.jsonl")),
                     ("sweep", str(spec), "--results", str(path), "--runs", str(tmp_path / "runs"))]
-        for command in commands:
-            result = run_cli(*command)
+        for command, result in each_command(commands):
             assert result.returncode == 2, (kind, command, result.stderr[-1500:])
             assert "not a regular file" in one_line(result.stderr), (kind, command)
             assert not (tmp_path / "runs").exists()
@@ -128,10 +135,9 @@ def test_a_wrong_place_or_a_damaged_config_is_one_line_for_every_reader(tmp_path
             os.symlink(config, config)
         else:
             config.write_text(json.dumps("point_mass" if damage == "a JSON string" else [1, 2]))
-    for command in (("eval", str(target)), ("export", str(target), "--out", str(tmp_path / "x")),
-                    ("render", str(target)), ("phase2", "reach-point-mass", str(target)), ("resume", str(target)),
-                    ("plot", str(target))):
-        result = run_cli(*command)
+    for command, result in each_command((("eval", str(target)), ("export", str(target), "--out", str(tmp_path / "x")),
+                                         ("render", str(target)), ("phase2", "reach-point-mass", str(target)),
+                                         ("resume", str(target)), ("plot", str(target)))):
         assert result.returncode == 2, (damage, command, result.stderr[-1500:])
         one_line(result.stderr)
 
@@ -180,11 +186,10 @@ def test_every_command_on_a_full_disk_says_so_in_one_line_and_loses_nothing(tmpf
     line = one_line(trained.stderr)
     assert trained.returncode == 1 and "No space left on device" in line and "newest complete checkpoint" in line
     newest = jobs.load_run(full)[1]  # the newest checkpoint left restores
-    for command in (("resume", str(full), "--epochs", "60"), ("phase2", str(full)),
-                    ("export", str(full), "--out", str(disk / "export")),
-                    ("eval", str(run_dir), "--out", str(disk / "eval.json")),
-                    ("render", str(run_dir), "--steps", "5", "--out", str(disk / "v.gif"))):
-        result = run_cli(*command)
+    for command, result in each_command((("resume", str(full), "--epochs", "60"), ("phase2", str(full)),
+                                         ("export", str(full), "--out", str(disk / "export")),
+                                         ("eval", str(run_dir), "--out", str(disk / "eval.json")),
+                                         ("render", str(run_dir), "--steps", "5", "--out", str(disk / "v.gif")))):
         assert result.returncode in (1, 2, 3), (command, result.stderr[-2000:])
         one_line(result.stderr)
     assert jobs.load_run(full)[1] == newest  # nothing the commands did cost the run its checkpoint
@@ -195,10 +200,9 @@ def test_every_command_on_a_read_only_disk_says_so_in_one_line(tmpfs, run_dir):
     copy = disk / "run"
     shutil.copytree(run_dir, copy, ignore=shutil.ignore_patterns(".lock"))
     subprocess.run(["mount", "-o", "remount,ro", str(disk)], check=True)
-    for command in (("resume", str(copy), "--epochs", "3"), ("phase2", str(copy)), ("eval", str(copy)),
-                    ("export", str(copy), "--out", str(disk / "export")), ("render", str(copy), "--steps", "5"),
-                    ("plot", str(copy))):
-        result = run_cli(*command)
+    for command, result in each_command((("resume", str(copy), "--epochs", "3"), ("phase2", str(copy)),
+                                         ("eval", str(copy)), ("export", str(copy), "--out", str(disk / "export")),
+                                         ("render", str(copy), "--steps", "5"), ("plot", str(copy)))):
         assert result.returncode in (1, 2, 3), (command, result.stderr[-2000:])
         one_line(result.stderr)
 

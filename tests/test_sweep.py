@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 
 import pytest
-from tiny import mjx_emp, run_cli
+from tiny import cli, mjx_emp, run_cli
 
 from mjx_emp.errors import ConfigError
 from mjx_emp.run.evaluate import row_figures
@@ -82,7 +82,7 @@ def test_a_second_call_trains_and_evaluates_nothing(swept):
 def test_eval_of_a_sweep_run_gives_its_row(swept, tmp_path):
     (stored,) = [r for r in read_rows(swept / "rows.jsonl") if (r["row"], r["seed"]) == ("he-k2", 1)]
     out = tmp_path / "eval.json"
-    result = run_cli("eval", stored["run_dir"], "--episodes", "16", "--seed", "0", "--out", str(out))
+    result = cli("eval", stored["run_dir"], "--episodes", "16", "--seed", "0", "--out", str(out))
     assert result.returncode == 0, result.stderr[-2000:]
     (evaluated,) = json.loads(out.read_text())["runs"]
     assert {**row_figures(evaluated), "spec": stored["spec"], "row": stored["row"]} == row_figures(stored)
@@ -92,7 +92,7 @@ def test_eval_of_a_sweep_run_gives_its_row(swept, tmp_path):
 def test_report_prints_iqm_intervals_and_writes_a_block(swept, tmp_path):
     page = tmp_path / "page.md"
     page.write_text("# results\n<!-- report:smoke -->\nold\n<!-- /report:smoke -->\nafter\n")
-    result = run_cli("report", str(SMOKE), "--results", str(swept / "rows.jsonl"), "--reps", "200",
+    result = cli("report", str(SMOKE), "--results", str(swept / "rows.jsonl"), "--reps", "200",
                      "--into", str(page), "--block", "smoke")
     assert result.returncode == 0, result.stderr[-2000:]
     assert "IQM [95% CI]" in result.stdout and "P(phase-2 min distance better than he-k1)" in result.stdout
@@ -104,9 +104,12 @@ def test_report_prints_iqm_intervals_and_writes_a_block(swept, tmp_path):
 
 def test_a_killed_sweep_called_again_through_submitit_ends_with_the_same_rows(swept, tmp_path):
     """SIGKILL the whole sweep (its worker too) while the first row's seeds train, then call it
-    again with submitit's local executor: the first row resumes as one program, the second
-    trains afresh, and every row equals the uninterrupted sweep's in every non-timing field."""
-    process = subprocess.Popen(mjx_emp("sweep", str(SMOKE), "--runs", str(tmp_path / "runs"), "--results",
+    again with submitit's local executor: the row resumes as one program, and its rows equal the
+    uninterrupted sweep's in every non-timing field. The spec is the smoke spec's first row (the
+    one the kill lands in); the second row would train afresh as the uninterrupted sweep did."""
+    spec = tmp_path / SMOKE.name
+    spec.write_text(SMOKE.read_text().split('\n[[row]]\nname = "he-k2"')[0])
+    process = subprocess.Popen(mjx_emp("sweep", str(spec), "--runs", str(tmp_path / "runs"), "--results",
                                        str(tmp_path / "rows.jsonl")),
                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     first_epoch = tmp_path / "runs" / "smoke-point-mass" / "he-k1-s0" / "metrics.jsonl"
@@ -117,11 +120,13 @@ def test_a_killed_sweep_called_again_through_submitit_ends_with_the_same_rows(sw
     os.killpg(process.pid, signal.SIGKILL)
     process.wait()
     assert not (tmp_path / "rows.jsonl").exists() or not read_rows(tmp_path / "rows.jsonl")
-    result = sweep(tmp_path, "--executor", "submitit-local")
+    result = run_cli("sweep", str(spec), "--runs", str(tmp_path / "runs"), "--results", str(tmp_path / "rows.jsonl"),
+                     "--executor", "submitit-local")
     assert result.returncode == 0, result.stderr[-3000:]
     rows = read_rows(tmp_path / "rows.jsonl")
     assert rows[0]["evaluation"]["did"][0].startswith("resumed seeds 0, 1 as one program")
-    assert [comparable(r) for r in rows] == [comparable(r) for r in read_rows(swept / "rows.jsonl")]
+    assert [r["row"] for r in rows] == ["he-k1", "he-k1"]
+    assert [comparable(r) for r in rows] == [comparable(r) for r in read_rows(swept / "rows.jsonl") if r["row"] == "he-k1"]
 
 
 def test_a_row_with_skills_from_builds_its_phase_2_on_a_copy_of_the_other_rows_runs(swept, tmp_path):

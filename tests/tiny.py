@@ -3,11 +3,16 @@ benchmark script loaded as a module."""
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 import importlib.util
+import io
+import logging
+import os
 import subprocess
 import sys
+import threading
 from pathlib import Path
 
 import jax
@@ -71,6 +76,42 @@ def mjx_emp(*args: str) -> list[str]:
 def run_cli(*args: str, env: dict[str, str] | None = None) -> subprocess.CompletedProcess:
     """Run ``mjx-emp ARGS`` to completion (in ``env``, else this process's environment), capturing its output."""
     return subprocess.run(mjx_emp(*args), capture_output=True, text=True, timeout=600, env=env)
+
+
+def cli(*args: str) -> subprocess.CompletedProcess:
+    """``mjx-emp ARGS`` run in this process through the command line's entry point, with what it
+    prints and the code it exits with, as :func:`run_cli` gives them.
+
+    For tests of what the command line decides (parsing, checks, the one-line message and exit
+    code of a failure) that need no process of their own: a new interpreter spends seconds
+    importing JAX and tracing what this process has traced already. What only a process shows
+    (signals, a kill, what is printed at exit, OpenGL chosen before MuJoCo loads) keeps
+    :func:`run_cli`. The libraries' hooks and the environment variables the command line sets are
+    put back afterwards.
+    """
+    from mjx_emp.cli import main
+    from mjx_emp.run.noise import LOGGERS
+
+    loggers = [logging.getLogger(name) for name in LOGGERS]
+    saved = [(logger, list(logger.handlers), logger.propagate) for logger in loggers]
+    hooks, environ = (threading.excepthook, sys.unraisablehook), dict(os.environ)
+    stdout, stderr = io.StringIO(), io.StringIO()
+    try:
+        with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
+            main(list(args))
+        code = 0
+    except SystemExit as stop:
+        code = stop.code if isinstance(stop.code, int) else (0 if stop.code is None else 1)
+        if isinstance(stop.code, str):
+            stderr.write(stop.code + "\n")
+    finally:
+        for logger, handlers, propagate in saved:
+            logger.handlers[:] = handlers
+            logger.propagate = propagate
+        threading.excepthook, sys.unraisablehook = hooks
+        os.environ.clear()
+        os.environ.update(environ)  # e.g. the OpenGL backend render chose
+    return subprocess.CompletedProcess(["mjx-emp", *args], code, stdout.getvalue(), stderr.getvalue())
 
 
 @functools.cache
