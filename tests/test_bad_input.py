@@ -13,7 +13,7 @@ import typing
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from tiny import run_cli
+from tiny import cli_in_process
 
 from mjx_emp import cli, commands
 from mjx_emp.algos.registry import algorithm_of, all_presets
@@ -128,7 +128,7 @@ def test_the_property_covers_every_numeric_flag():
     (["eval", "no-run", "--bogus", "1"], "Unrecognized options"),
 ])
 def test_the_command_line_refuses_nonsense_with_exit_2_and_one_line(argv, named):
-    result = run_cli(*argv)
+    result = cli_in_process(*argv)
     lines = [line for line in result.stderr.splitlines() if line.strip()]
     assert result.returncode == 2 and len(lines) == 1 and "Traceback" not in result.stderr, result.stderr[-1500:]
     assert named in lines[0] and lines[0].startswith("mjx-emp: invalid configuration: ")

@@ -6,6 +6,7 @@ import dataclasses
 import errno
 import json
 import os
+import shutil
 import signal
 import subprocess
 import time
@@ -15,7 +16,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from tiny import SMALL, TINY, mjx_emp, run_cli, tiny_after_two_epochs, tiny_trainer
+from tiny import (
+    SMALL,
+    TINY,
+    cli_in_process,
+    mjx_emp,
+    run_cli,
+    tiny_after_two_epochs,
+    tiny_trainer,
+)
 
 from mjx_emp import cli
 from mjx_emp.algos.he.agent import HEAgent
@@ -155,7 +164,7 @@ def test_config_mismatch_names_the_checkpoint_file_and_the_field(saved_run):
 def test_truncated_checkpoint_names_the_file_and_fallback_uses_the_previous_one(saved_run, tmp_path):
     run_dir, states = saved_run
     copy = tmp_path / "run"
-    subprocess.run(["cp", "-r", str(run_dir), str(copy)], check=True)
+    shutil.copytree(run_dir, copy, symlinks=True)
     data_files = sorted((copy / "checkpoints" / "2" / "state" / "d").iterdir(), key=lambda p: p.stat().st_size)
     victim = data_files[-1]  # the largest array file of the newest checkpoint
     os.truncate(victim, victim.stat().st_size // 2)
@@ -253,7 +262,7 @@ def final_state(run_dir: Path, epoch: int):
 def straight_run(tmp_path_factory):
     """SMALL trained to the end without a stop."""
     straight = tmp_path_factory.mktemp("straight") / "run"
-    result = run_cli("train", *SMALL, "--run-dir", str(straight))
+    result = cli_in_process("train", *SMALL, "--run-dir", str(straight))
     assert result.returncode == 0, result.stderr
     return straight
 
@@ -274,7 +283,7 @@ def test_sigterm_or_sigint_stops_after_the_write_names_the_checkpoint_and_resume
     lines = [json.loads(line) for line in (stopped / "metrics.jsonl").read_text().splitlines()]
     assert [m["epoch"] for m in lines] == list(range(1, kept[-1] + 1))  # a metrics line for every checkpoint
 
-    result = run_cli("train", "--resume", str(stopped))
+    result = cli_in_process("train", "--resume", str(stopped))
     assert result.returncode == 0, result.stderr
     assert_bitwise_equal(final_state(stopped, 4), final_state(straight_run, 4))
 
@@ -286,7 +295,7 @@ def test_sigkill_then_resume_is_bitwise_identical_to_an_uninterrupted_run(straig
     kill_when(process, lambda: (killed / "checkpoints" / "2").exists())
     assert not (killed / "checkpoints" / "4").exists(), "the run finished before the kill"
 
-    result = run_cli("train", "--resume", str(killed))
+    result = cli_in_process("train", "--resume", str(killed))
     assert result.returncode == 0, result.stderr
     assert "resuming" in result.stdout
     assert_bitwise_equal(final_state(killed, 4), final_state(straight, 4))
@@ -312,7 +321,7 @@ def test_sigkill_during_a_checkpoint_write_resumes_from_the_previous_epoch(tmp_p
     unfinished_epoch = int(unfinished[0].split(".")[0])
     assert unfinished_epoch not in complete and max(complete) == unfinished_epoch - 1
 
-    result = run_cli("train", "--resume", str(run_dir), "--epochs", str(unfinished_epoch))
+    result = cli_in_process("train", "--resume", str(run_dir), "--epochs", str(unfinished_epoch))
     assert result.returncode == 0, result.stderr
     assert f"resuming {run_dir} from epoch {unfinished_epoch - 1}" in result.stdout
     assert (checkpoints_dir / str(unfinished_epoch)).exists()
@@ -322,7 +331,7 @@ def test_sigkill_during_a_checkpoint_write_resumes_from_the_previous_epoch(tmp_p
 def test_resume_of_a_corrupt_checkpoint_exits_2_naming_the_file_then_falls_back(saved_run, tmp_path, capsys):
     run_dir, _ = saved_run
     copy = tmp_path / "run"
-    subprocess.run(["cp", "-r", str(run_dir), str(copy)], check=True)
+    shutil.copytree(run_dir, copy, symlinks=True)
     (copy / "config.json").write_text(json.dumps(dataclasses.asdict(dataclasses.replace(TINY, epochs=2))))
     metadata = copy / "checkpoints" / "2" / "state" / "_METADATA"
     metadata.write_text(metadata.read_text()[:100])
@@ -349,7 +358,7 @@ def test_flipped_bytes_in_a_data_file_are_caught_naming_the_file_or_change_nothi
     caught = []
     for index, victim in enumerate(victims):
         copy = tmp_path / f"run{index}"
-        subprocess.run(["cp", "-r", str(run_dir), str(copy)], check=True)
+        shutil.copytree(run_dir, copy, symlinks=True)
         data = bytearray((copy / victim).read_bytes())
         for offset in (len(data) // 3, len(data) // 2, 2 * len(data) // 3):
             data[offset] ^= 0xFF
@@ -374,7 +383,7 @@ def test_flipped_bytes_in_a_data_file_are_caught_naming_the_file_or_change_nothi
 def test_a_corrupt_array_is_named_with_its_checkpoint(saved_run, tmp_path):
     run_dir, states = saved_run
     copy = tmp_path / "run"
-    subprocess.run(["cp", "-r", str(run_dir), str(copy)], check=True)
+    shutil.copytree(run_dir, copy, symlinks=True)
     largest = max((p for p in (copy / "checkpoints" / "2" / "state").rglob("*") if p.is_file()),
                   key=lambda p: p.stat().st_size)
     data = bytearray(largest.read_bytes())
@@ -396,7 +405,7 @@ def test_a_second_writer_is_refused_naming_the_holder_and_a_killed_holders_lock_
         while not (run_dir / "checkpoints" / "1").exists():
             assert process.poll() is None and time.monotonic() < deadline
             time.sleep(0.05)
-        second = run_cli("train", "--resume", str(run_dir))
+        second = cli_in_process("train", "--resume", str(run_dir))
         assert second.returncode == 2, second.stderr
         assert f"resume: '{run_dir}' is in use by process {process.pid} on " in second.stderr
     finally:
@@ -404,7 +413,7 @@ def test_a_second_writer_is_refused_naming_the_holder_and_a_killed_holders_lock_
         process.wait()
     assert (run_dir / ".lock").read_text().startswith(f"{process.pid} on ")  # left behind by the killed writer
     newest = max(int(p.name) for p in (run_dir / "checkpoints").iterdir() if p.name.isdigit())
-    resumed = run_cli("train", "--resume", str(run_dir), "--epochs", str(newest + 1))
+    resumed = cli_in_process("train", "--resume", str(run_dir), "--epochs", str(newest + 1))
     assert resumed.returncode == 0, resumed.stderr
     assert f"taking over the lock of {run_dir} left by process {process.pid}" in resumed.stdout
     assert (run_dir / ".lock").read_text() == ""  # released when the resume ended
@@ -475,9 +484,9 @@ def test_a_planted_half_written_checkpoint_is_ignored_and_cleaned_up(saved_run, 
     the directory removes the leftover."""
     run_dir, states = saved_run
     copy = tmp_path / "run"
-    subprocess.run(["cp", "-r", str(run_dir), str(copy)], check=True)
+    shutil.copytree(run_dir, copy, symlinks=True)
     partial = copy / "checkpoints" / "3.orbax-checkpoint-tmp-1234567890"
-    subprocess.run(["cp", "-r", str(copy / "checkpoints" / "2"), str(partial)], check=True)
+    shutil.copytree(copy / "checkpoints" / "2", partial, symlinks=True)
     for name in ("commit_success.txt", "_CHECKPOINT_METADATA"):
         (partial / name).unlink(missing_ok=True)
     data = max((p for p in (partial / "state").rglob("*") if p.is_file()), key=lambda p: p.stat().st_size)
@@ -495,7 +504,7 @@ def test_a_reader_leaves_a_checkpoint_being_written_alone(saved_run, tmp_path):
     training process is writing) survives them, and the newest complete epoch is what they load."""
     run_dir, states = saved_run
     copy = tmp_path / "run"
-    subprocess.run(["cp", "-r", str(run_dir), str(copy)], check=True)
+    shutil.copytree(run_dir, copy, symlinks=True)
     write_config(copy, TINY)
     writing = copy / "checkpoints" / "3.orbax-checkpoint-tmp"
     writing.mkdir()
@@ -511,7 +520,7 @@ def test_a_reader_leaves_a_checkpoint_being_written_alone(saved_run, tmp_path):
 def test_a_resume_to_fewer_epochs_than_done_is_refused_before_anything_is_rewritten(saved_run, tmp_path, capsys):
     run_dir, _ = saved_run
     copy = tmp_path / "run"
-    subprocess.run(["cp", "-r", str(run_dir), str(copy)], check=True)
+    shutil.copytree(run_dir, copy, symlinks=True)
     write_config(copy, TINY)
     config = (copy / "config.json").read_text()
     with pytest.raises(SystemExit) as stop:
@@ -524,7 +533,7 @@ def test_a_resume_to_fewer_epochs_than_done_is_refused_before_anything_is_rewrit
 def test_a_renamed_checkpoint_folder_is_refused_naming_both_epochs(saved_run, tmp_path):
     run_dir, states = saved_run
     copy = tmp_path / "run"
-    subprocess.run(["cp", "-r", str(run_dir), str(copy)], check=True)
+    shutil.copytree(run_dir, copy, symlinks=True)
     (copy / "checkpoints" / "1").rename(copy / "checkpoints" / "10")
     with Checkpoints(copy, read_only=True) as checkpoints, pytest.raises(CheckpointError) as err:
         checkpoints.restore_latest(states[2], TINY)

@@ -1,6 +1,6 @@
 """``mjx-emp`` command line: bad input exits 2 naming the field; the main job runs.
 
-The commands run in this process through the command line's entry point (``tiny.cli``); the
+The commands run in this process through the command line's entry point (``tiny.cli_in_process``); the
 first test runs bad input and the main job as processes of their own, as a user's shell does."""
 
 import json
@@ -9,7 +9,7 @@ import subprocess
 import sys
 
 import pytest
-from tiny import cli, run_cli
+from tiny import cli_in_process, run_cli
 
 
 def test_a_process_exits_2_with_one_line_naming_the_field_and_0_after_the_main_job():
@@ -72,7 +72,7 @@ def test_a_process_exits_2_with_one_line_naming_the_field_and_0_after_the_main_j
     ],
 )
 def test_bad_config_exits_2_naming_the_field_and_the_rule(args, message):
-    result = cli(*args)
+    result = cli_in_process(*args)
     assert result.returncode == 2, result.stderr
     assert message in result.stderr, result.stderr
 
@@ -94,7 +94,7 @@ def test_bad_config_exits_2_naming_the_field_and_the_rule(args, message):
     ],
 )
 def test_bad_values_exit_2_with_the_whole_reason(args, message):
-    result = cli(*args)
+    result = cli_in_process(*args)
     assert result.returncode == 2, result.stderr
     assert message in result.stderr, result.stderr
 
@@ -104,7 +104,7 @@ COMMAND_NAMES = ("train", "resume", "phase2", "export", "presets", "eval", "plot
 
 @pytest.mark.parametrize("args", [["--help"], ["trian"]])
 def test_help_and_a_typo_list_every_command(args):
-    result = cli(*args)
+    result = cli_in_process(*args)
     assert result.returncode == (0 if args == ["--help"] else 2)
     listed = (result.stdout + result.stderr).replace("\n", " ")
     for name in COMMAND_NAMES:
@@ -114,7 +114,7 @@ def test_help_and_a_typo_list_every_command(args):
 @pytest.mark.parametrize("args", [["eval", "--help"], ["plot", "--help"], ["render", "--help"], ["resume", "--help"],
                                   ["phase2", "reach-point-mass", "--help"]])
 def test_run_directories_are_named_run_dir_in_help(args):
-    result = cli(*args)
+    result = cli_in_process(*args)
     assert result.returncode == 0, result.stderr
     usage = result.stdout.split("\n\n")[0]
     positional = [token for token in usage.split()[2:] if not token.startswith(("[", "-")) and not token.endswith("]")]
@@ -155,10 +155,10 @@ def test_phase2_of_a_run_directory_is_its_own_task_with_only_the_named_fields_re
 
 
 def test_help_explains_fields():
-    result = cli("rollout", "--help")
+    result = cli_in_process("rollout", "--help")
     assert result.returncode == 0
     assert "Max actions per level" in result.stdout
-    result = cli("train", "point-mass-k2", "--help")
+    result = cli_in_process("train", "point-mass-k2", "--help")
     assert result.returncode == 0
     for text in ("Maximum number of actions per level", "--keep-checkpoints", "--run-dir", "Polyak"):
         assert text in result.stdout
@@ -166,13 +166,13 @@ def test_help_explains_fields():
 
 def test_train_refuses_a_run_dir_that_holds_a_run(tmp_path):
     (tmp_path / "metrics.jsonl").write_text('{"epoch": 1}\n')
-    result = cli("train", "point-mass-k1", "--run-dir", str(tmp_path))
+    result = cli_in_process("train", "point-mass-k1", "--run-dir", str(tmp_path))
     assert result.returncode == 2
     assert f"run_dir: '{tmp_path}' already holds a run; continue it with `mjx-emp train --resume {tmp_path}`" in result.stderr
 
 
 def test_rollout_main_job_reports_statistics():
-    result = cli("rollout", "--n", "5", "3", "--eps", "0.3", "0.6", "--batch-size", "16",
+    result = cli_in_process("rollout", "--n", "5", "3", "--eps", "0.3", "0.6", "--batch-size", "16",
                  "--steps", "30", "--calls", "1", "--hidden", "32", "32")
     assert result.returncode == 0, result.stderr
     report = json.loads(result.stdout)
@@ -183,13 +183,13 @@ def test_rollout_main_job_reports_statistics():
 
 
 def test_unknown_preset_exits_2_listing_presets():
-    result = cli("train", "point-mass-k9")
+    result = cli_in_process("train", "point-mass-k9")
     assert result.returncode == 2
     assert "point-mass-k1" in result.stderr
 
 
 def test_presets_lists_every_table_1_row():
-    result = cli("presets")
+    result = cli_in_process("presets")
     assert result.returncode == 0
     for name in ("point-mass-k1", "ant-field-k1-paper-small", "ant-field-k3-paper-xl",
                  "half-cheetah-field-k2-paper-big", "ant-cage-k2-paper", "half-cheetah-cage-k1-paper"):
@@ -198,7 +198,7 @@ def test_presets_lists_every_table_1_row():
 
 def test_train_writes_config_and_one_metrics_line_per_epoch(tmp_path):
     run_dir = tmp_path / "run"
-    result = cli("train", "point-mass-k2", "--epochs", "2", "--n", "3", "2", "--num-envs", "8",
+    result = cli_in_process("train", "point-mass-k2", "--epochs", "2", "--n", "3", "2", "--num-envs", "8",
                  "--hidden", "16", "--gc-iterations", "1", "--gc-grad-steps", "2", "--batch-size", "16",
                  "--replay-capacity", "256", "--start-chain", "2", "--run-dir", str(run_dir))
     assert result.returncode == 0, result.stderr
@@ -231,7 +231,7 @@ def test_compiled_programs_are_cached_under_the_users_cache_dir_unless_turned_of
     ["--batch-size", "20000000", "--replay-capacity", "20000000", "--gs-replay-capacity", "20000000"],
 ])
 def test_a_run_that_cannot_fit_in_memory_is_refused_before_anything_is_allocated(tmp_path, args):
-    result = cli("train", "point-mass-k1", *args, "--run-dir", str(tmp_path / "run"))
+    result = cli_in_process("train", "point-mass-k1", *args, "--run-dir", str(tmp_path / "run"))
     assert result.returncode == 2, result.stderr
     assert "invalid configuration: memory: this run needs about" in result.stderr
     assert "lower one of replay_capacity, num_envs, batch_size" in result.stderr
@@ -240,7 +240,7 @@ def test_a_run_that_cannot_fit_in_memory_is_refused_before_anything_is_allocated
 
 def test_a_diverging_run_exits_1_through_the_cli_keeping_the_last_good_checkpoint(tmp_path):
     run_dir = tmp_path / "run"
-    result = cli("train", "point-mass-k1", "--num-envs", "8", "--hidden", "16", "--batch-size", "16",
+    result = cli_in_process("train", "point-mass-k1", "--num-envs", "8", "--hidden", "16", "--batch-size", "16",
                  "--gc-iterations", "2", "--gc-grad-steps", "3", "--replay-capacity", "2048",
                  "--sigma-gc", "1e-30", "--epochs", "3", "--run-dir", str(run_dir))  # rewards overflow to -inf
     assert result.returncode == 1, result.stderr

@@ -13,7 +13,7 @@ import subprocess
 from pathlib import Path
 
 import pytest
-from tiny import TINY1, cli, run_cli
+from tiny import TINY1, cli_in_process, run_cli
 
 from mjx_emp.commands import ResumeExperiment, TrainExperiment
 from mjx_emp.errors import ConfigError
@@ -50,9 +50,9 @@ def one_line(stderr: str) -> str:
 
 def each_command(commands) -> list:
     """(command, result) of each command line: the first run as a process of its own (what a
-    user's shell starts), the others in this process through the same entry point (``tiny.cli``),
+    user's shell starts), the others in this process through the same entry point (``tiny.cli_in_process``),
     but for render, which chooses OpenGL before MuJoCo loads and so needs a process of its own."""
-    return [(command, (run_cli if i == 0 or command[0] == "render" else cli)(*command))
+    return [(command, (run_cli if i == 0 or command[0] == "render" else cli_in_process)(*command))
             for i, command in enumerate(commands)]
 
 

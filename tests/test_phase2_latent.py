@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from test_checkpoint import assert_bitwise_equal
 from test_skills import tiny
-from tiny import TINY_PHASE2, run_cli
+from tiny import TINY_PHASE2, cli_in_process
 
 from mjx_emp.algos.skills.agent import SkillAgent
 from mjx_emp.commands import Phase2Experiment, ResumeExperiment, TrainExperiment
@@ -87,7 +87,7 @@ def test_flat_phase2_trains_resumes_bitwise_and_eval_reports_it(tmp_path):
     assert_bitwise_equal(resumed, straight)
     lines = [json.loads(line) for line in (run_dir / "phase2" / "metrics.jsonl").read_text().splitlines()]
     assert lines[-1]["critic_loss"] is not None and 0 <= lines[-1]["success"] <= 1
-    result = run_cli("eval", str(run_dir), "--episodes", "16")  # the CLI finds the flat run's phase 2 beside it
+    result = cli_in_process("eval", str(run_dir), "--episodes", "16")  # the CLI finds the flat run's phase 2 beside it
     assert result.returncode == 0, result.stderr
     report = json.loads((run_dir / "eval.json").read_text())
     assert report["runs"][0]["figures"]["phase2"]["episodes"] >= 16 and "phase 2" in result.stdout

@@ -10,7 +10,7 @@ import time
 from pathlib import Path
 
 import pytest
-from tiny import SMALL, TINY1, mjx_emp, run_cli
+from tiny import SMALL, TINY1, cli_in_process, mjx_emp
 
 from mjx_emp.commands import ResumeExperiment, TrainExperiment
 from mjx_emp.errors import ConfigError, WriteError
@@ -61,7 +61,7 @@ def test_a_phase2_directory_without_a_checkpoint_names_the_way_out_and_does_not_
     (phase2_dir / store.SKILLS_FILE).write_text((run_dir / store.CONFIG_FILE).read_text())
     with pytest.raises(ConfigError, match=f"start it again with `mjx-emp phase2 PHASE1_RUN_DIR --out {phase2_dir}`"):
         jobs.resume(ResumeExperiment(resume=str(phase2_dir)))
-    result = run_cli("eval", str(run_dir), "--episodes", "8", "--out", str(tmp_path / "eval.json"))
+    result = cli_in_process("eval", str(run_dir), "--episodes", "8", "--out", str(tmp_path / "eval.json"))
     assert result.returncode == 0, result.stderr
     assert f"{phase2_dir} is unusable, its phase 2 is left out" in result.stderr
     assert "phase 2: no run has a phase-2 directory" in result.stdout
@@ -69,7 +69,7 @@ def test_a_phase2_directory_without_a_checkpoint_names_the_way_out_and_does_not_
 
 
 def test_the_same_run_twice_is_not_two_seeds(tmp_path):
-    result = run_cli("eval", str(tmp_path), f"{tmp_path}/", "--episodes", "8")
+    result = cli_in_process("eval", str(tmp_path), f"{tmp_path}/", "--episodes", "8")
     assert result.returncode == 2
     assert "run_dirs: each run counts once" in result.stderr
 
@@ -105,7 +105,7 @@ def test_eval_onto_a_read_only_disk_exits_2_in_one_line(tmp_path, small_filesyst
     jobs.train(TrainExperiment(config=dataclasses.replace(TINY1, epochs=1), run_dir=str(run_dir)))
     subprocess.run(["mount", "-o", "remount,ro", str(small_filesystem)], check=True)
     out = small_filesystem / "eval.json"
-    result = run_cli("eval", str(run_dir), "--episodes", "8", "--out", str(out))
+    result = cli_in_process("eval", str(run_dir), "--episodes", "8", "--out", str(out))
     assert result.returncode == 2, result.stderr
     assert result.stderr.strip().splitlines() == [f"mjx-emp: write failed: cannot write {out}: Read-only file system"]
 
@@ -157,7 +157,7 @@ def test_render_with_an_unknown_gl_backend_or_a_non_finite_fps_says_so_in_one_li
     assert bad_gl.stderr.strip().splitlines() == [
         "mjx-emp: cannot render: MUJOCO_GL='nonsense' is not a backend MuJoCo can render with; allowed values: "
         "['egl', 'osmesa', 'glx', 'glfw']"]
-    bad_fps = run_cli("render", str(tmp_path), "--fps", "inf")
+    bad_fps = cli_in_process("render", str(tmp_path), "--fps", "inf")
     assert bad_fps.returncode == 2
     assert bad_fps.stderr.strip().splitlines() == ["mjx-emp: invalid configuration: fps: must be a finite number > 0; "
                                                    "got inf"]
@@ -166,7 +166,7 @@ def test_render_with_an_unknown_gl_backend_or_a_non_finite_fps_says_so_in_one_li
 def test_plot_of_a_run_with_no_finished_epoch_says_so(tmp_path):
     store.write_config(tmp_path, TINY1)
     (tmp_path / store.METRICS_FILE).write_text("")
-    result = run_cli("plot", str(tmp_path))
+    result = cli_in_process("plot", str(tmp_path))
     assert result.returncode == 2
     assert result.stderr.strip().splitlines() == [f"mjx-emp: invalid configuration: run_dir: '{tmp_path}' has no "
                                                   f"finished epoch to plot; plot it once an epoch has ended"]
@@ -195,9 +195,9 @@ def test_the_warp_backend_is_refused_naming_the_field_where_it_cannot_run(tmp_pa
 
     if jax.default_backend() == "gpu":
         pytest.skip("a GPU: warp may run here")
-    result = run_cli("train", "point-mass-k1", "--impl", "warp", "--run-dir", str(tmp_path / "r"))
+    result = cli_in_process("train", "point-mass-k1", "--impl", "warp", "--run-dir", str(tmp_path / "r"))
     assert result.returncode == 2
     assert "invalid configuration: impl: warp" in result.stderr and "allowed here: jax" in result.stderr
     assert not (tmp_path / "r").exists()  # refused before the run directory is made
-    unknown = run_cli("train", "point-mass-k1", "--impl", "cuda", "--run-dir", str(tmp_path / "r"))
+    unknown = cli_in_process("train", "point-mass-k1", "--impl", "cuda", "--run-dir", str(tmp_path / "r"))
     assert unknown.returncode == 2 and "impl: 'cuda' is unknown; allowed values: ['jax', 'warp']" in unknown.stderr

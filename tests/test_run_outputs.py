@@ -9,7 +9,7 @@ import jax
 import numpy as np
 import pytest
 from PIL import Image
-from tiny import SMALL, run_cli
+from tiny import SMALL, cli_in_process, run_cli
 
 from mjx_emp.run import jobs, packing
 from mjx_emp.viz.render import Recording, first_skills, marker_position
@@ -32,7 +32,7 @@ def test_markers_sit_on_the_floor_plane_for_2d_goals_and_on_the_x_axis_for_1d_go
 @pytest.fixture(scope="module")
 def trained_run(tmp_path_factory):
     run_dir = tmp_path_factory.mktemp("render") / "run"
-    trained = run_cli("train", *SMALL, "--epochs", "1", "--run-dir", str(run_dir))
+    trained = cli_in_process("train", *SMALL, "--epochs", "1", "--run-dir", str(run_dir))
     assert trained.returncode == 0, trained.stderr
     return run_dir
 
@@ -92,9 +92,9 @@ def test_the_gif_shares_one_palette_that_keeps_the_goal_colour(trained_run, tmp_
 
 
 def test_a_video_that_cannot_be_written_is_refused_before_the_run_loads(trained_run, tmp_path):
-    odd = run_cli("render", str(trained_run), "--width", "161", "--out", str(tmp_path / "v.mp4"))
+    odd = cli_in_process("render", str(trained_run), "--width", "161", "--out", str(tmp_path / "v.mp4"))
     assert odd.returncode == 2 and "width and height: an MP4 needs even sizes; got 161x480" in odd.stderr
-    other = run_cli("render", str(trained_run), "--out", str(tmp_path / "v.avi"))
+    other = cli_in_process("render", str(trained_run), "--out", str(tmp_path / "v.avi"))
     assert other.returncode == 2 and "out: a video file ends in one of ['.mp4', '.gif']; got 'v.avi'" in other.stderr
 
 
@@ -105,7 +105,7 @@ PHASE2_SMALL = ["--epochs", "2", "--num-envs", "8", "--iterations", "2", "--grad
 
 @pytest.fixture(scope="module")
 def phase2_run(trained_run):
-    result = run_cli("phase2", str(trained_run), *PHASE2_SMALL)
+    result = cli_in_process("phase2", str(trained_run), *PHASE2_SMALL)
     assert result.returncode == 0, result.stderr
     return trained_run / "phase2"
 
@@ -125,9 +125,9 @@ def test_phase2_trains_on_the_runs_skills_and_resumes_exactly(trained_run, phase
     assert json.loads((phase2_run / "skills.json").read_text()) == json.loads((trained_run / "config.json").read_text())
     assert [json.loads(line)["epoch"] for line in (phase2_run / "metrics.jsonl").read_text().splitlines()] == [1, 2]
 
-    again = run_cli("phase2", str(trained_run), *PHASE2_SMALL)
+    again = cli_in_process("phase2", str(trained_run), *PHASE2_SMALL)
     assert again.returncode == 2 and "already holds a phase-2 run" in again.stderr
-    resumed = run_cli("phase2", "--resume", str(phase2_run), "--epochs", "3")
+    resumed = cli_in_process("phase2", "--resume", str(phase2_run), "--epochs", "3")
     assert resumed.returncode == 0, resumed.stderr
 
     # Resumed at epoch 2, the run matches three straight epochs bit for bit.
@@ -157,12 +157,12 @@ def test_render_films_the_phase2_policy_with_its_goal(trained_run, phase2_run, t
     (["--phase1-epoch", "7"], "phase1_epoch: "),
 ])
 def test_phase2_bad_input_exits_2_naming_the_field(trained_run, tmp_path, args, message):
-    result = run_cli("phase2", str(trained_run), "--out", str(tmp_path / "p2"), *args)
+    result = cli_in_process("phase2", str(trained_run), "--out", str(tmp_path / "p2"), *args)
     assert result.returncode == 2 and message in result.stderr
 
 
 def test_plot_draws_growth_the_goal_space_boxes_and_phase2_curves(trained_run, phase2_run):
-    result = run_cli("plot", str(trained_run))
+    result = cli_in_process("plot", str(trained_run))
     assert result.returncode == 0, result.stderr
     names = ["goal_space_growth.png", "phase2_curves.png", "goal_spaces.png"]
     assert [line.rsplit("/", 1)[-1] for line in result.stdout.splitlines()[1:]] == names
@@ -175,7 +175,7 @@ def test_eval_reports_every_level_and_phase2_and_aggregates_runs_as_seeds(traine
     out = tmp_path / "eval.json"
     copy = tmp_path / "copy"  # a second seed that is the same run: the spread over the two is 0
     shutil.copytree(trained_run, copy, ignore=shutil.ignore_patterns(".lock"))
-    result = run_cli("eval", str(trained_run), str(copy), "--episodes", "16", "--out", str(out))
+    result = cli_in_process("eval", str(trained_run), str(copy), "--episodes", "16", "--out", str(out))
     assert result.returncode == 0, result.stderr
     report = json.loads(out.read_text())
     assert len(report["runs"]) == 2 and report["runs"][0]["figures"]["epoch"] == 1
@@ -213,7 +213,7 @@ def test_eval_reports_every_level_and_phase2_and_aggregates_runs_as_seeds(traine
 
 def test_an_export_keeps_the_skills_without_the_replay_and_phase_2_reads_it(trained_run, phase2_run, tmp_path):
     out = tmp_path / "skills"
-    result = run_cli("export", str(trained_run), "--out", str(out))
+    result = cli_in_process("export", str(trained_run), "--out", str(out))
     assert result.returncode == 0, result.stderr
     assert "(epoch 1)" in result.stdout
     agent, epoch, whole = jobs.load_run(trained_run)
@@ -232,9 +232,9 @@ def test_an_export_keeps_the_skills_without_the_replay_and_phase_2_reads_it(trai
     for a, b in zip(packing.pack(trainer.init(lean)).values(), packing.pack(trainer.init(whole)).values()):
         np.testing.assert_array_equal(a, b)
 
-    refused = run_cli("resume", str(out))
+    refused = cli_in_process("resume", str(out))
     assert refused.returncode == 2 and "is a skills export" in refused.stderr and "replay" in refused.stderr
-    again = run_cli("export", str(trained_run), "--out", str(out))
+    again = cli_in_process("export", str(trained_run), "--out", str(out))
     assert again.returncode == 2 and f"out: {str(out)!r} holds a skills export of {trained_run}" in again.stderr
     assert "choose another --out" in again.stderr
     assert "resume" not in again.stderr  # an export is written once; nothing can continue it

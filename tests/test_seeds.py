@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 from test_skills import tiny
-from tiny import TINY1, run_cli
+from tiny import TINY1, cli_in_process
 
 from mjx_emp.commands import ResumeExperiment, TrainExperiment
 from mjx_emp.run import jobs, store
@@ -59,7 +59,7 @@ def test_seeds_in_one_program_match_separate_runs_and_each_resumes_alone(config,
 
 
 def test_repeated_seeds_are_refused_naming_the_field(tmp_path):
-    result = run_cli("train", "point-mass-k1", "--seeds", "1", "1", "--run-dir", str(tmp_path / "r"))
+    result = cli_in_process("train", "point-mass-k1", "--seeds", "1", "1", "--run-dir", str(tmp_path / "r"))
     assert result.returncode == 2
     assert "seeds: must be distinct integers >= 0; got [1, 1]" in result.stderr
     assert not (tmp_path / "r-s1").exists()

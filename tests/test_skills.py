@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from PIL import Image
 from test_checkpoint import assert_bitwise_equal, kill_when
-from tiny import TINY, mjx_emp, run_cli
+from tiny import TINY, cli_in_process, mjx_emp, run_cli
 
 from mjx_emp.algos.he.agent import HEAgent
 from mjx_emp.algos.he.config import GcrlConfig
@@ -182,7 +182,7 @@ def test_sigkill_then_resume_of_a_baseline_is_bitwise_identical(tmp_path):
 def test_eval_reports_coverage_and_posterior_std(tmp_path):
     cfg = tiny("diayn")
     jobs.train(TrainExperiment(config=cfg, run_dir=str(tmp_path / "run")))
-    result = run_cli("eval", str(tmp_path / "run"))
+    result = cli_in_process("eval", str(tmp_path / "run"))
     assert result.returncode == 0, result.stderr
     report = json.loads((tmp_path / "run" / "eval.json").read_text())
     assert 1 <= report["runs"][0]["figures"]["coverage_cells"] <= 48 * (cfg.n + 1)
@@ -232,7 +232,7 @@ def test_bad_skill_config_names_the_field(change, message):
 def test_plot_and_render_draw_a_flat_learners_run(tmp_path):
     run_dir = tmp_path / "metra"
     jobs.train(TrainExperiment(config=tiny("metra"), run_dir=str(run_dir)))
-    plotted = run_cli("plot", str(run_dir))
+    plotted = cli_in_process("plot", str(run_dir))
     assert plotted.returncode == 0, plotted.stderr
     names = ["skill_learning.png", "skills.png"]
     assert [line.rsplit("/", 1)[-1] for line in plotted.stdout.splitlines()[1:]] == names

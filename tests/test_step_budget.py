@@ -7,7 +7,7 @@ import dataclasses
 import json
 
 import pytest
-from tiny import TINY1, run_cli
+from tiny import TINY1, cli_in_process
 
 from mjx_emp.algos.he.presets import PRESETS
 from mjx_emp.checks import compile_identity
@@ -54,7 +54,7 @@ def test_a_budget_is_not_part_of_what_compiles_or_of_which_preset_a_run_belongs_
 
 
 def test_a_budget_below_one_step_is_refused_naming_the_field(tmp_path):
-    result = run_cli("train", "point-mass-k1", "--max-env-steps", "0", "--run-dir", str(tmp_path / "r"))
+    result = cli_in_process("train", "point-mass-k1", "--max-env-steps", "0", "--run-dir", str(tmp_path / "r"))
     assert result.returncode == 2
     assert "max_env_steps: must be >= 1; got 0" in result.stderr
     assert not (tmp_path / "r").exists()

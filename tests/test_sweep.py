@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 
 import pytest
-from tiny import cli, mjx_emp, run_cli
+from tiny import cli_in_process, mjx_emp, run_cli
 
 from mjx_emp.errors import ConfigError
 from mjx_emp.run.evaluate import row_figures
@@ -82,7 +82,7 @@ def test_a_second_call_trains_and_evaluates_nothing(swept):
 def test_eval_of_a_sweep_run_gives_its_row(swept, tmp_path):
     (stored,) = [r for r in read_rows(swept / "rows.jsonl") if (r["row"], r["seed"]) == ("he-k2", 1)]
     out = tmp_path / "eval.json"
-    result = cli("eval", stored["run_dir"], "--episodes", "16", "--seed", "0", "--out", str(out))
+    result = cli_in_process("eval", stored["run_dir"], "--episodes", "16", "--seed", "0", "--out", str(out))
     assert result.returncode == 0, result.stderr[-2000:]
     (evaluated,) = json.loads(out.read_text())["runs"]
     assert {**row_figures(evaluated), "spec": stored["spec"], "row": stored["row"]} == row_figures(stored)
@@ -92,7 +92,7 @@ def test_eval_of_a_sweep_run_gives_its_row(swept, tmp_path):
 def test_report_prints_iqm_intervals_and_writes_a_block(swept, tmp_path):
     page = tmp_path / "page.md"
     page.write_text("# results\n<!-- report:smoke -->\nold\n<!-- /report:smoke -->\nafter\n")
-    result = cli("report", str(SMOKE), "--results", str(swept / "rows.jsonl"), "--reps", "200",
+    result = cli_in_process("report", str(SMOKE), "--results", str(swept / "rows.jsonl"), "--reps", "200",
                      "--into", str(page), "--block", "smoke")
     assert result.returncode == 0, result.stderr[-2000:]
     assert "IQM [95% CI]" in result.stdout and "P(phase-2 min distance better than he-k1)" in result.stdout

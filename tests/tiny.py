@@ -78,7 +78,7 @@ def run_cli(*args: str, env: dict[str, str] | None = None) -> subprocess.Complet
     return subprocess.run(mjx_emp(*args), capture_output=True, text=True, timeout=600, env=env)
 
 
-def cli(*args: str) -> subprocess.CompletedProcess:
+def cli_in_process(*args: str) -> subprocess.CompletedProcess:
     """``mjx-emp ARGS`` run in this process through the command line's entry point, with what it
     prints and the code it exits with, as :func:`run_cli` gives them.
 
