@@ -24,13 +24,8 @@ RESET_OUTCOMES = ("last", "start")
 
 
 @dataclasses.dataclass(frozen=True)
-class HEConfig:
-    """Phase-1 Hierarchical Empowerment training of a k-level agent.
-
-    Per-level tuples (n, sigma_gc, sigma_gs, eps, init_half_width, max_half_width) are
-    indexed from the bottom level up; k is their length. Names follow the paper; values the paper leaves
-    open are ours, stated in the presets' docstrings.
-    """
+class Physics:
+    """The domain and how it is simulated."""
 
     env: str = "point_mass"
     """Domain: point_mass, ant_field, ant_cage, half_cheetah_field or half_cheetah_cage."""
@@ -49,6 +44,13 @@ class HEConfig:
     impl: str = "jax"
     """MJX backend: jax (MJX's own, on any device; deterministic) or warp (MuJoCo Warp, CUDA
     GPUs only, needs the mujoco-warp package; not bit-for-bit deterministic)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Levels:
+    """What each level is, bottom level first: its actions per attempt, rewards' widths, goal
+    threshold and goal-space box. k is the length of these tuples; names follow the paper."""
+
     n: tuple[int, ...] = (10,)
     """Maximum number of actions per level (the paper's n), bottom level first."""
     sigma_gc: tuple[float, ...] = (0.2,)
@@ -62,6 +64,15 @@ class HEConfig:
     max_half_width: tuple[float, ...] = (5.0,)
     """Soft upper bound on each level's goal-space half-width and |shift| (a safety rail
     far above what the level can reach; see networks.GoalSpaceActor)."""
+    @property
+    def k(self) -> int:
+        return len(self.n)
+
+
+@dataclasses.dataclass(frozen=True)
+class Schedule:
+    """How an epoch spends its environment steps and gradient steps, and how many epochs run."""
+
     epochs: int = 20
     """Curriculum epochs (the paper trains 980-1900; see the presets)."""
     max_env_steps: int | None = None
@@ -90,6 +101,16 @@ class HEConfig:
     gets fewer iterations than a one-level agent's; repeating it gives some back."""
     batch_size: int = 256
     """Minibatch size of every gradient step."""
+    start_chain: int = 10
+    """Top-level skills executed in a row from the initial state when filling start buffers."""
+    start_chunks: int = 2
+    """Rollout calls per epoch spent on the start-state chain."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Buffers:
+    """What each level keeps to learn from."""
+
     replay_capacity: int = 100_000
     """Goal-conditioned transitions kept per level."""
     gs_replay_capacity: int = 4_096
@@ -101,10 +122,13 @@ class HEConfig:
     iteration starts from an empty buffer D and learns from its own collection only.
     False keeps persistent ring buffers of the capacities above (the default;
     docs/algorithm.md#differences-from-the-papers-algorithms-1-3)."""
-    start_chain: int = 10
-    """Top-level skills executed in a row from the initial state when filling start buffers."""
-    start_chunks: int = 2
-    """Rollout calls per epoch spent on the start-state chain."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Learner:
+    """The networks and their updates: DDPG's goal-conditioned actors and critics and the
+    goal-space actor-critics, with the options beyond the paper each off by default."""
+
     hidden: tuple[int, ...] = (256, 256)
     """Hidden layer widths of every actor and critic."""
     actor_lr: float = 3e-4
@@ -135,6 +159,27 @@ class HEConfig:
     False is the paper's plain MLP."""
     actor_layer_norm: bool = False
     """LayerNorm before every hidden ReLU of the goal-conditioned actors."""
+    critics: int = 1
+    """Goal-conditioned critics per level. 1 is the paper's DDPG; 2 is TD3's clipped
+    double-Q (Fujimoto et al. 2018): two critics, bootstrapped targets from the smaller
+    of the two target critics, the actor ascending their mean."""
+    tau: float = 0.01
+    """Polyak rate of the goal-conditioned target networks."""
+    action_noise: float = 0.2
+    """Exploration std of the trained level's actions, in units of its box half-width."""
+    goal_noise: float = 0.2
+    """Std of the noise on the goal-space action when sampling training goals (shift in
+    half-widths, log half-width in nats), so goals come from within and near the box."""
+    gs_noise: float = 0.2
+    """Std of the noise on the goal-space action in goal-space iterations (same units)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Flips:
+    """What a flip (an Ant reset upside down, a Half Cheetah on its back) teaches the levels.
+    Every option is off by default, as in the paper, which does not say what its robots did
+    on their backs."""
+
     learn_from_resets: bool = False
     """Keep what a reset (a flipped Ant) ended: the goal-conditioned levels store the actions it
     cut short as final rows scored as if the robot stayed where it fell (r / (1 - gamma),
@@ -163,29 +208,24 @@ class HEConfig:
     (1 - z of its up axis: 0 upright, 1 on its side, 2 upside down), so the level that moves
     the joints learns to keep the robot upright; robots with a torso that tilts only (the Ant,
     the Half Cheetah). 0 is the paper's reward, log N(goal; h(s'), sigma) alone."""
-    critics: int = 1
-    """Goal-conditioned critics per level. 1 is the paper's DDPG; 2 is TD3's clipped
-    double-Q (Fujimoto et al. 2018): two critics, bootstrapped targets from the smaller
-    of the two target critics, the actor ascending their mean."""
-    tau: float = 0.01
-    """Polyak rate of the goal-conditioned target networks."""
-    action_noise: float = 0.2
-    """Exploration std of the trained level's actions, in units of its box half-width."""
-    goal_noise: float = 0.2
-    """Std of the noise on the goal-space action when sampling training goals (shift in
-    half-widths, log half-width in nats), so goals come from within and near the box."""
-    gs_noise: float = 0.2
-    """Std of the noise on the goal-space action in goal-space iterations (same units)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class HEConfig(Flips, Learner, Buffers, Schedule, Levels, Physics):
+    """Phase-1 Hierarchical Empowerment training of a k-level agent.
+
+    The fields of Physics, Levels, Schedule, Buffers, Learner and Flips, and the run's seed and
+    shards, as one flat set: the names that flags, config.json, presets and sweep overrides use.
+    (Dataclass fields come from the last base class first, so the flags list physics first.)
+    Names follow the paper; values the paper leaves open are ours, stated in the presets.
+    """
+
     seed: int = 0
     """Seed of all randomness."""
     shards: int = 1
     """Equal parts the environment batch, minibatch, replay and start buffers are split into
     (data parallelism: each part on its own device where there are enough, gradients
     averaged over them). Fixed for a run; `--num-devices` places the parts."""
-
-    @property
-    def k(self) -> int:
-        return len(self.n)
 
 
 _PER_LEVEL = ("n", "sigma_gc", "sigma_gs", "eps", "init_half_width", "max_half_width")
@@ -200,15 +240,70 @@ SHARD_SPLIT = ("num_envs", "batch_size", "replay_capacity", "gs_replay_capacity"
 
 def check_train_config(cfg: HEConfig, positive: tuple[str, ...] = _POSITIVE) -> None:
     """Raise ConfigError naming the first invalid field of ``cfg`` and what it allows
-    (``positive``: the count fields that must be >= 1)."""
+    (``positive``: the count fields that must be >= 1), group by group."""
+    check_physics_fields(cfg)
+    check_level_fields(cfg)
+    check_flip_fields(cfg)
+    check_shards(cfg, SHARD_SPLIT)
+    check_counts(cfg, positive)
+    check_schedule_fields(cfg)
+    check_learner_fields(cfg)
+    check_finite(cfg)
+    check_bounds(cfg)
+    check_buffer_fields(cfg)
+
+
+def check_physics_fields(cfg: HEConfig) -> None:
+    """The domain exists and the physics' overrides are allowed; heading frames and tilt costs only
+    where the robot has the torso they read."""
     if cfg.env not in DOMAINS:
         raise ConfigError(f"env: {cfg.env!r} is unknown; allowed values: {sorted(DOMAINS)}")
     if cfg.heading_frame and DOMAINS[cfg.env].torso_quat is None:
         allowed = sorted(name for name, spec in DOMAINS.items() if spec.torso_quat is not None)
         raise ConfigError(f"heading_frame: {cfg.env!r} has no free torso; allowed only with env in {allowed}")
+    check_physics(cfg.solver_iterations, cfg.integrator, cfg.impl)
+
+
+def check_level_fields(cfg: HEConfig) -> None:
+    """One positive entry per level in every per-level tuple, each box starting below its bound."""
+    check_levels(cfg.n, cfg.eps)
+    for name in _PER_LEVEL:
+        value = getattr(cfg, name)
+        if len(value) != cfg.k:
+            raise ConfigError(f"{name}: need one entry per level (k={cfg.k} from n); got {value}")
+        if any(not v > 0 for v in value):
+            raise ConfigError(f"{name}: every entry must be > 0; got {value}")
+    for level, (start, bound) in enumerate(zip(cfg.init_half_width, cfg.max_half_width)):
+        if not start < bound:
+            raise ConfigError(
+                f"init_half_width: level {level} starts at {start}, which must be below "
+                f"max_half_width {bound}"
+            )
+
+
+def check_schedule_fields(cfg: HEConfig) -> None:
+    """Level repeats, one per level, and evaluation collections that are not negative (the counts
+    that must be >= 1 are checked with the others by ``check_counts``)."""
     if cfg.level_repeats and (len(cfg.level_repeats) != cfg.k or any(r < 1 for r in cfg.level_repeats)):
         raise ConfigError(f"level_repeats: empty (each level once) or one entry >= 1 per level (k={cfg.k} from n); "
                           f"got {cfg.level_repeats}")
+    if cfg.eval_iterations < 0:
+        raise ConfigError(f"eval_iterations: must be >= 0; got {cfg.eval_iterations}")
+
+
+def check_learner_fields(cfg: HEConfig) -> None:
+    """Learning rates and noises in range, relabelling fractions in [0, 1]."""
+    check_learning(cfg, ("actor_lr", "critic_lr", "gs_actor_lr", "gs_critic_lr"),
+                    ("action_noise", "goal_noise", "gs_noise"))
+    if not 0 <= cfg.relabel <= 1:
+        raise ConfigError(f"relabel: a fraction in [0, 1]; got {cfg.relabel}")
+    if not 0 <= cfg.her <= 1:
+        raise ConfigError(f"her: a fraction in [0, 1]; got {cfg.her}")
+
+
+def check_flip_fields(cfg: HEConfig) -> None:
+    """Costs that are not negative, a tilt cost only on a robot that tilts, and a reset outcome only
+    where the episodes a reset cut short are learnt from."""
     if not cfg.flip_cost >= 0.0:
         raise ConfigError(f"flip_cost: must be >= 0; got {cfg.flip_cost}")
     if not cfg.tilt_cost >= 0.0:
@@ -216,38 +311,16 @@ def check_train_config(cfg: HEConfig, positive: tuple[str, ...] = _POSITIVE) -> 
     if cfg.tilt_cost > 0.0 and not tiltable(DOMAINS[cfg.env]):
         allowed = sorted(name for name, spec in DOMAINS.items() if tiltable(spec))
         raise ConfigError(f"tilt_cost: {cfg.env!r} has no torso to tilt; allowed only with env in {allowed}")
-    check_physics(cfg.solver_iterations, cfg.integrator, cfg.impl)
-    check_levels(cfg.n, cfg.eps)
-    check_shards(cfg, SHARD_SPLIT)
-    for name in _PER_LEVEL:
-        value = getattr(cfg, name)
-        if len(value) != cfg.k:
-            raise ConfigError(f"{name}: need one entry per level (k={cfg.k} from n); got {value}")
-        if any(not v > 0 for v in value):
-            raise ConfigError(f"{name}: every entry must be > 0; got {value}")
-    check_counts(cfg, positive)
-    for level, (start, bound) in enumerate(zip(cfg.init_half_width, cfg.max_half_width)):
-        if not start < bound:
-            raise ConfigError(
-                f"init_half_width: level {level} starts at {start}, which must be below "
-                f"max_half_width {bound}"
-            )
-    if cfg.eval_iterations < 0:
-        raise ConfigError(f"eval_iterations: must be >= 0; got {cfg.eval_iterations}")
-    check_learning(cfg, ("actor_lr", "critic_lr", "gs_actor_lr", "gs_critic_lr"),
-                    ("action_noise", "goal_noise", "gs_noise"))
-    if not 0 <= cfg.relabel <= 1:
-        raise ConfigError(f"relabel: a fraction in [0, 1]; got {cfg.relabel}")
-    if not 0 <= cfg.her <= 1:
-        raise ConfigError(f"her: a fraction in [0, 1]; got {cfg.her}")
     if cfg.reset_outcome not in RESET_OUTCOMES:
         raise ConfigError(f"reset_outcome: {cfg.reset_outcome!r} is unknown; allowed values: {list(RESET_OUTCOMES)}")
     if cfg.reset_outcome != "last" and not cfg.learn_from_resets:
         raise ConfigError(f"reset_outcome: {cfg.reset_outcome!r} needs learn_from_resets=True (without it the "
                           "episodes a reset cut short are not scored)")
-    check_finite(cfg)
-    check_bounds(cfg)
-    # One step of every environment; a collection chunk larger than the ring keeps its newest rows.
+
+
+def check_buffer_fields(cfg: HEConfig) -> None:
+    """Every buffer holds at least a minibatch and one step or episode of every environment (a
+    collection chunk larger than the ring keeps its newest rows)."""
     check_capacity(cfg, "replay_capacity", {"a minibatch (batch_size)": cfg.batch_size,
                                             "one step of every environment (num_envs)": cfg.num_envs})
     check_capacity(cfg, "gs_replay_capacity", {"a minibatch (batch_size)": cfg.batch_size,
