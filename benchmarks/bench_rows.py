@@ -48,7 +48,7 @@ def numbered_names(settings: Iterable[str]) -> dict[str, str]:
     return {setting: names({}) for setting in settings}
 
 
-def session_name(device: str) -> str:
-    """A GPU session's name, the first part of its rows' names: ``gpu_session_`` and the device's
-    model (``NVIDIA H200``: gpu_session_h200; a CPU: gpu_session_cpu)."""
-    return "gpu_session_" + device.split()[-1].lower()
+def lease_name(device: str) -> str:
+    """A GPU lease's name, the first part of its rows' names: ``gpu_lease_`` and the device's
+    model (``NVIDIA H200``: gpu_lease_h200; a CPU: gpu_lease_cpu)."""
+    return "gpu_lease_" + device.split()[-1].lower()

@@ -17,11 +17,11 @@ seeds, ``point-mass-k1`` for the training steps) so that the script can be teste
 in about a minute and cannot rot; its figures mean nothing. Steps not started when
 ``--budget-s`` has passed are recorded as skipped. See docs/gpu.md.
 
-Each measured setting is a row of ``results/gpu-sessions.jsonl`` (``--results``; a dry run's go
-to ``results/gpu-sessions-dry-run.jsonl``), named ``SESSION/check/STEP/...`` (a step on another
-backend than jax: ``SESSION/check/IMPL/STEP/...``; one that did not run:
-``SESSION/check/not_run/...`` with the reason). ``SESSION`` (``--session``) defaults to
-``gpu_session_<device model>``, such as ``gpu_session_h200``.
+Each measured setting is a row of ``results/gpu-leases.jsonl`` (``--results``; a dry run's go
+to ``results/gpu-leases-dry-run.jsonl``), named ``LEASE/check/STEP/...`` (a step on another
+backend than jax: ``LEASE/check/IMPL/STEP/...``; one that did not run:
+``LEASE/check/not_run/...`` with the reason). ``LEASE`` (``--lease``) defaults to
+``gpu_lease_<device model>``, such as ``gpu_lease_h200``.
 
     python benchmarks/device_check.py --results /tmp/out/check.jsonl
 """
@@ -42,7 +42,7 @@ sys.path.insert(0, str(Path(__file__).parent))  # the sibling benchmarks whose m
 
 import rollout as rollout_benchmark  # noqa: E402
 import seeds as seeds_benchmark  # noqa: E402
-from bench_rows import RowNames, session_name  # noqa: E402
+from bench_rows import RowNames, lease_name  # noqa: E402
 
 from mjx_emp.algos.registry import all_presets, make_agent  # noqa: E402
 from mjx_emp.envs.env import check_backend, make_env  # noqa: E402
@@ -52,14 +52,14 @@ from mjx_emp.run.rows import RESULTS_DIR, append_row, benchmark_row  # noqa: E40
 from mjx_emp.run.seeds import SeedGroup  # noqa: E402
 
 PRESET = "ant-field-k1-paper-small"
-SPEC = "gpu-sessions"
-DRY_RUN_SPEC = "gpu-sessions-dry-run"
+SPEC = "gpu-leases"
+DRY_RUN_SPEC = "gpu-leases-dry-run"
 """A dry run's rows: kept apart from the measured ones."""
 
 
 @dataclasses.dataclass
 class Args:
-    """Every measurement a GPU session needs, in one command."""
+    """Every measurement a GPU lease needs, in one command."""
 
     dry_run: bool = False
     """Tiny sizes on any device: checks that every step runs, measures nothing."""
@@ -72,8 +72,8 @@ class Args:
     """Start no new step after this many seconds (one command may run 10 minutes)."""
     results: str = ""
     """The results store the rows are appended to; empty means results/<spec>.jsonl."""
-    session: str = ""
-    """The session's name, the first part of every row name; empty: gpu_session_<device model>."""
+    lease: str = ""
+    """The lease's name, the first part of every row name; empty: gpu_lease_<device model>."""
 
 
 def sizes(args: Args) -> dict:
@@ -146,14 +146,14 @@ def memory_step(impl: str, plan: dict) -> dict:
 STEPS = {"rollout": rollout_step, "train": train_step, "seeds": seeds_step, "memory": memory_step}
 
 
-def step_rows(spec: str, session: str, entry: dict, names: RowNames) -> list[dict]:
+def step_rows(spec: str, lease: str, entry: dict, names: RowNames) -> list[dict]:
     """One step's rows: one per setting it measured, or one saying why it did not run."""
     step, impl = entry["step"], entry["impl"]
     if "result" not in entry:
         record = {"step": step, "impl": impl, "why": entry.get("skipped") or entry.get("error"),
                   **{key: entry[key] for key in ("traceback",) if key in entry}}
-        return [benchmark_row(spec, names(record, f"{session}/check/not_run"), record)]
-    group = f"{session}/check/{step}" if impl == "jax" else f"{session}/check/{impl}/{step}"
+        return [benchmark_row(spec, names(record, f"{lease}/check/not_run"), record)]
+    group = f"{lease}/check/{step}" if impl == "jax" else f"{lease}/check/{impl}/{step}"
     result = entry["result"]
     return [benchmark_row(spec, names(record, group), {**record, "step": step, "step_s": entry["seconds"]})
             for record in (result if isinstance(result, list) else [result])]
@@ -166,7 +166,7 @@ def main(args: Args) -> list[dict]:
         raise SystemExit(2)
     spec = DRY_RUN_SPEC if args.dry_run else SPEC
     results = Path(args.results or Path(RESULTS_DIR) / f"{spec}.jsonl")
-    session = args.session or session_name(jax.devices()[0].device_kind)
+    lease = args.lease or lease_name(jax.devices()[0].device_kind)
     plan = sizes(args)
     names = RowNames()
     rows = []
@@ -188,7 +188,7 @@ def main(args: Args) -> list[dict]:
                     entry["error"] = f"{type(err).__name__}: {err}"
                     entry["traceback"] = traceback.format_exc(limit=8)
                 entry["seconds"] = time.perf_counter() - began
-            for row in step_rows(spec, session, entry, names):
+            for row in step_rows(spec, lease, entry, names):
                 append_row(results, row)
                 rows.append(row)
             print(json.dumps({k: v for k, v in entry.items() if k != "traceback"})[:400], flush=True)

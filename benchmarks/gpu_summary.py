@@ -1,12 +1,12 @@
-"""Summarise one GPU session's files (what ``benchmarks/device_session.sh`` leaves in $OUT):
-the session's settings, the prepared check's figures, each training row's epochs and each row's
-phase 2, as Markdown tables and rows of ``results/gpu-sessions.jsonl`` (``--results``).
+"""Summarise one GPU lease's files (what ``benchmarks/device_lease.sh`` leaves in $OUT):
+the lease's settings, the prepared check's figures, each training row's epochs and each row's
+phase 2, as Markdown tables and rows of ``results/gpu-leases.jsonl`` (``--results``).
 
 The check's rows (``check.jsonl``, written on the GPU machine by ``benchmarks/device_check.py``)
 are appended as they are; each training row and each phase 2 becomes a row
-``SESSION/training/RUN`` or ``SESSION/phase2/RUN``. ``SESSION`` is the session's ``SESSION=``
-setting, else ``gpu_session_<GPU model>`` as the check names its rows (``--name`` overrides).
-A dry run's rows (``DRY=1``) go to ``results/gpu-sessions-dry-run.jsonl``.
+``LEASE/training/RUN`` or ``LEASE/phase2/RUN``. ``LEASE`` is the lease's ``LEASE=``
+setting, else ``gpu_lease_<GPU model>`` as the check names its rows (``--name`` overrides).
+A dry run's rows (``DRY=1``) go to ``results/gpu-leases-dry-run.jsonl``.
 
     python benchmarks/gpu_summary.py /tmp/out
 """
@@ -25,27 +25,27 @@ from mjx_emp.run.rows import RESULTS_DIR, append_row, benchmark_row, read_rows
 from mjx_emp.run.store import parse_metrics, read_metrics_text, warn_metrics
 
 sys.path.insert(0, str(Path(__file__).parent))
-from bench_rows import row_name, session_name  # noqa: E402
+from bench_rows import lease_name, row_name  # noqa: E402
 
-SPEC = "gpu-sessions"
-DRY_RUN_SPEC = "gpu-sessions-dry-run"
+SPEC = "gpu-leases"
+DRY_RUN_SPEC = "gpu-leases-dry-run"
 CHECK_ROWS = "check.jsonl"
-"""The check's rows in a session folder (``device_check.py --results``)."""
+"""The check's rows in a lease folder (``device_check.py --results``)."""
 
 
 @dataclasses.dataclass
 class Args:
-    """One session folder in, one summary out."""
+    """One lease folder in, one summary out."""
 
-    session: tyro.conf.Positional[str]
+    lease: tyro.conf.Positional[str]
     results: str = ""
     """The results store the rows are appended to; empty means results/<spec>.jsonl."""
     name: str = ""
-    """The session's name, the first part of its rows' names; empty: see the module's text."""
+    """The lease's name, the first part of its rows' names; empty: see the module's text."""
 
 
 def read_versions(path: Path) -> dict:
-    """The GPU's name and the package versions the session's smoke test printed."""
+    """The GPU's name and the package versions the lease's smoke test printed."""
     if not path.exists():
         return {}
     text = path.read_text()
@@ -55,7 +55,7 @@ def read_versions(path: Path) -> dict:
 
 
 def read_settings(path: Path) -> dict:
-    """The session's settings (rows, flags, time budgets): the ``NAME=value`` lines the session
+    """The lease's settings (rows, flags, time budgets): the ``NAME=value`` lines the lease
     writes at the top of ``versions.txt``."""
     if not path.exists():
         return {}
@@ -63,7 +63,7 @@ def read_settings(path: Path) -> dict:
 
 
 def read_epochs(path: Path) -> list[dict]:
-    """A session file's per-epoch metric lines (phase 1's or phase 2's), read as the library reads
+    """A lease file's per-epoch metric lines (phase 1's or phase 2's), read as the library reads
     metrics.jsonl: a line a kill cut short is named on stderr and skipped."""
     valid, problems = parse_metrics(read_metrics_text(path))
     warn_metrics(path, problems, "skipped")
@@ -80,7 +80,7 @@ def check_figures(rows: list[dict]) -> dict:
 
 
 def training_row(path: Path) -> dict:
-    """One training row's throughput and where its top goal space stood when the session ended."""
+    """One training row's throughput and where its top goal space stood when the lease ended."""
     epochs = read_epochs(path)
     warm = epochs[1:] or epochs
     top = [e["levels"][-1] for e in epochs]
@@ -140,19 +140,19 @@ def markdown(summary: dict) -> str:
 
 
 def main(args: Args) -> dict:
-    session = Path(args.session)
-    settings = read_settings(session / "versions.txt")
-    machine = read_versions(session / "versions.txt")
-    checked = read_rows(session / CHECK_ROWS)
-    summary = {"session": str(session), "settings": settings, **machine, "check": check_figures(checked),
-               "training": [training_row(path) for path in sorted(session.glob("*.metrics.jsonl"))],
-               "phase2": [phase2_row(path) for path in sorted(session.glob("*.phase2.jsonl"))]}
+    lease = Path(args.lease)
+    settings = read_settings(lease / "versions.txt")
+    machine = read_versions(lease / "versions.txt")
+    checked = read_rows(lease / CHECK_ROWS)
+    summary = {"lease": str(lease), "settings": settings, **machine, "check": check_figures(checked),
+               "training": [training_row(path) for path in sorted(lease.glob("*.metrics.jsonl"))],
+               "phase2": [phase2_row(path) for path in sorted(lease.glob("*.phase2.jsonl"))]}
     print(markdown(summary))
     spec = DRY_RUN_SPEC if settings.get("DRY") == "1" else SPEC
     results = Path(args.results or Path(RESULTS_DIR) / f"{spec}.jsonl")
-    name = args.name or settings.get("SESSION") or session_name(machine.get("gpu") or "cpu")
-    rows = [] if results.resolve() == (session / CHECK_ROWS).resolve() else list(checked)  # measured on the GPU
-    about = {"session": str(session), **machine, "settings": settings}
+    name = args.name or settings.get("LEASE") or lease_name(machine.get("gpu") or "cpu")
+    rows = [] if results.resolve() == (lease / CHECK_ROWS).resolve() else list(checked)  # measured on the GPU
+    about = {"lease": str(lease), **machine, "settings": settings}
     rows += [benchmark_row(spec, row_name(record, f"{name}/{group}"), {**record, **about})
              for group in ("training", "phase2") for record in summary[group]]
     for row in rows:

@@ -32,12 +32,12 @@ def test_a_benchmark_names_each_setting_as_its_carried_row(spec):
         assert names(row["record"], group, row["seed"]) == row["row"]
 
 
-def test_the_gpu_sessions_rows_are_named_as_the_check_and_the_summary_name_them():
+def test_the_gpu_leases_rows_are_named_as_the_check_and_the_summary_name_them():
     names = bench_rows.RowNames()
-    for row in carried("gpu-sessions"):
-        session = row["row"].split("/")[0]
-        assert names(row["record"], f"{session}/{row['figures']['source_group']}") == row["row"]
-    assert bench_rows.session_name("NVIDIA H200") == "gpu_session_h200"
+    for row in carried("gpu-leases"):
+        lease = row["row"].split("/")[0]
+        assert names(row["record"], f"{lease}/{row['figures']['source_group']}") == row["row"]
+    assert bench_rows.lease_name("NVIDIA H200") == "gpu_lease_h200"
 
 
 def test_flag_sets_and_robots_keep_their_carried_names_whichever_a_run_measures():

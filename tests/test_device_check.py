@@ -1,4 +1,4 @@
-"""The GPU machine's prepared session runs every step at tiny sizes here, so it cannot rot."""
+"""The GPU machine's prepared lease runs every step at tiny sizes here, so it cannot rot."""
 
 import json
 import os
@@ -16,19 +16,19 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.mark.slow  # four minutes of CPU in six processes; run it before a GPU lease (docs/gpu.md)
-def test_the_device_session_dry_run_runs_every_step_and_writes_its_rows(tmp_path):
+def test_the_device_lease_dry_run_runs_every_step_and_writes_its_rows(tmp_path):
     out = tmp_path / "out"
     env = {**os.environ, "DRY": "1", "WHEELS": "none", "PYTHON": sys.executable, "OUT": str(out),
            "RUNS": str(tmp_path / "runs"), "TOTAL_S": "720", "CHECK_S": "400", "PHASE2_S": "200",
            "JAX_COMPILATION_CACHE_DIR": str(tmp_path / "cache")}
-    result = subprocess.run(["bash", str(ROOT / "benchmarks" / "device_session.sh")], capture_output=True, text=True,
+    result = subprocess.run(["bash", str(ROOT / "benchmarks" / "device_lease.sh")], capture_output=True, text=True,
                             timeout=900, cwd=ROOT, env=env)
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
     assert "smoke epoch" in (out / "versions.txt").read_text()
     rows = read_rows(out / "check.jsonl")
-    assert {row["spec"] for row in rows} == {"gpu-sessions-dry-run"}  # never mixed with measured rows
+    assert {row["spec"] for row in rows} == {"gpu-leases-dry-run"}  # never mixed with measured rows
     jax_rows = [row for row in rows if row["figures"]["impl"] == "jax"]
-    assert [row["row"].split("/", 1)[1] for row in jax_rows] == [  # the session's order, each after the session
+    assert [row["row"].split("/", 1)[1] for row in jax_rows] == [  # the lease's order, each after the lease
         "check/memory/all", "check/train/point-mass-k1/num_envs8", "check/rollout/point_mass/batch8/k1",
         "check/seeds/seeds2"]
     figures = {row["figures"]["step"]: row["figures"] for row in jax_rows}
@@ -48,22 +48,22 @@ def test_the_device_session_dry_run_runs_every_step_and_writes_its_rows(tmp_path
     (row,) = json.loads((out / "point-mass-k1.eval.json").read_text())["runs"]
     run = row["figures"]
     assert run["epoch"] == 2 and run["phase2"]["epoch"] == 1 and run["phase2"]["episodes"] == 8
-    summary = benchmark("gpu_summary")  # back home: the session's rows into the store, a dry run's apart
-    summary.main(summary.Args(session=str(out), results=str(tmp_path / "rows.jsonl")))
+    summary = benchmark("gpu_summary")  # back home: the lease's rows into the store, a dry run's apart
+    summary.main(summary.Args(lease=str(out), results=str(tmp_path / "rows.jsonl")))
     stored = read_rows(tmp_path / "rows.jsonl")
-    assert stored[:len(rows)] == rows and {row["spec"] for row in stored} == {"gpu-sessions-dry-run"}
-    session = rows[0]["row"].split("/")[0]
-    assert [row["row"] for row in stored[len(rows):]] == [f"{session}/training/point-mass-k1",
-                                                          f"{session}/phase2/point-mass-k1"]
+    assert stored[:len(rows)] == rows and {row["spec"] for row in stored} == {"gpu-leases-dry-run"}
+    lease = rows[0]["row"].split("/")[0]
+    assert [row["row"] for row in stored[len(rows):]] == [f"{lease}/training/point-mass-k1",
+                                                          f"{lease}/phase2/point-mass-k1"]
 
 
 @pytest.mark.slow  # two and a half minutes of CPU; run it before a GPU lease that trains seeds together
-def test_the_device_session_trains_a_rows_seeds_in_one_program_and_returns_each_seeds_skills(tmp_path):
+def test_the_device_lease_trains_a_rows_seeds_in_one_program_and_returns_each_seeds_skills(tmp_path):
     out = tmp_path / "out"
     env = {**os.environ, "DRY": "1", "WHEELS": "none", "PYTHON": sys.executable, "OUT": str(out), "SEEDS": "0 1",
            "RUNS": str(tmp_path / "runs"), "TOTAL_S": "700", "CHECK_S": "0", "PHASE2_S": "300",
            "JAX_COMPILATION_CACHE_DIR": str(tmp_path / "cache")}
-    result = subprocess.run(["bash", str(ROOT / "benchmarks" / "device_session.sh")], capture_output=True, text=True,
+    result = subprocess.run(["bash", str(ROOT / "benchmarks" / "device_lease.sh")], capture_output=True, text=True,
                             timeout=900, cwd=ROOT, env=env)
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
     log = (out / "point-mass-k1.log").read_text()

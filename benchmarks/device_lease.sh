@@ -9,13 +9,13 @@
 # and <preset>.eval.json. With SEEDS (e.g. "0 1 2 3") each row trains those seeds in one vmapped program
 # (`--seeds`), and every per-row file above is per run, <preset>-s<seed>, but for the log and the metrics,
 # which travel inside each run's skills export (a lease returns at most 8 files). Back home,
-# `python benchmarks/gpu_summary.py $OUT` appends the session's rows to results/gpu-sessions.jsonl.
-# SESSION names them (default gpu_session_<GPU model>, such as gpu_session_h200). See docs/gpu.md.
+# `python benchmarks/gpu_summary.py $OUT` appends the lease's rows to results/gpu-leases.jsonl.
+# LEASE names them (default gpu_lease_<GPU model>, such as gpu_lease_h200). See docs/gpu.md.
 #
-#   OUT=/tmp/out TOTAL_S=560 CHECK_S=300 bash benchmarks/device_session.sh
+#   OUT=/tmp/out TOTAL_S=560 CHECK_S=300 bash benchmarks/device_lease.sh
 #   OUT=/tmp/out TOTAL_S=540 CHECK_S=0 PHASE2_S=200 ROWS=ant-field-k1-paper-small \
-#     TRAIN_FLAGS="--solver-iterations 4 --critic-layer-norm" bash benchmarks/device_session.sh
-#   DRY=1 OUT=/tmp/out TOTAL_S=240 CHECK_S=150 bash benchmarks/device_session.sh   # tiny sizes, one row
+#     TRAIN_FLAGS="--solver-iterations 4 --critic-layer-norm" bash benchmarks/device_lease.sh
+#   DRY=1 OUT=/tmp/out TOTAL_S=240 CHECK_S=150 bash benchmarks/device_lease.sh   # tiny sizes, one row
 #
 # Wheels in .whl/ (mujoco, mujoco-mjx, tyro and what they need, for the machine's Python) are
 # installed first; .whl/pins/ holds this project's pinned flax, optax and orbax-checkpoint, used only
@@ -29,7 +29,7 @@ ROWS=${ROWS:-ant-field-k1-paper-small half-cheetah-field-k1-paper-small}  # pres
 TRAIN_FLAGS=${TRAIN_FLAGS:-}  # config flags for every row, e.g. --solver-iterations 4
 SEEDS=${SEEDS:-}  # seeds trained together in each row's one program; empty: the preset's own seed
 DRY=${DRY:-0}
-SESSION=${SESSION:-}  # the first part of the session's row names; empty: gpu_session_<GPU model>
+LEASE=${LEASE:-}  # the first part of the lease's row names; empty: gpu_lease_<GPU model>
 RUNS=${RUNS:-/tmp/runs}  # the training rows' run directories (their checkpoints stay on the machine)
 PY=${PYTHON:-python3}
 mkdir -p "$OUT"
@@ -69,7 +69,7 @@ print("smoke epoch", agent.metrics(*agent.train_epoch(agent.init()), 1.0)["env_s
 PY
 }
 printf '%s\n' "ROWS=$ROWS" "TRAIN_FLAGS=$TRAIN_FLAGS" "SEEDS=$SEEDS" "TOTAL_S=$TOTAL_S" "CHECK_S=$CHECK_S" \
-  "PHASE2_S=$PHASE2_S" "DRY=$DRY" "SESSION=$SESSION" > "$OUT/versions.txt"  # the settings first, then the machine
+  "PHASE2_S=$PHASE2_S" "DRY=$DRY" "LEASE=$LEASE" > "$OUT/versions.txt"  # the settings first, then the machine
 nvidia-smi >> "$OUT/versions.txt" 2>&1
 if ! smoke >> "$OUT/versions.txt" 2> "$OUT/smoke.log"; then
   echo "smoke test failed with the machine's packages; trying the pinned flax/optax/orbax" | tee -a "$OUT/smoke.log"
@@ -82,7 +82,7 @@ cat "$OUT/versions.txt"
 if [ "$CHECK_S" -gt 0 ]; then
   check_args=(--results "$OUT/check.jsonl" --budget-s $((CHECK_S - 120)) --steps memory train rollout seeds)
   [ "$DRY" = 1 ] && check_args+=(--dry-run)
-  [ -n "$SESSION" ] && check_args+=(--session "$SESSION")
+  [ -n "$LEASE" ] && check_args+=(--lease "$LEASE")
   timeout --signal=KILL "$CHECK_S" $PY benchmarks/device_check.py "${check_args[@]}" 2>&1 \
     | tee "$OUT/check.log" | grep -v '^W'
 fi
@@ -138,4 +138,4 @@ for run in "${runs[@]}"; do
   cp "$RUNS/$run/phase2/metrics.jsonl" "$OUT/$run.phase2.jsonl" 2>/dev/null
 done
 for preset in "${rows[@]}"; do tail -3 "$OUT/$preset.log"; done
-echo "session done in $(( $(date +%s) - began )) s"
+echo "lease done in $(( $(date +%s) - began )) s"
