@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from tiny import TINY_PHASE2, tiny_after_two_epochs
 
-from mjx_emp.envs.env import Torso
+from mjx_emp.envs.parts import Torso
 from mjx_emp.rollout.structures import Transition
 from mjx_emp.run import flips
 

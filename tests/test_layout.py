@@ -10,7 +10,7 @@ PACKAGE = ROOT / "mjx_emp"
 LAYERS = [
     ["mjx_emp.errors", "mjx_emp.tracing", "mjx_emp.counters", "mjx_emp.tables", "mjx_emp.shards"],
     ["mjx_emp.checks", "mjx_emp.envs.registry"],
-    ["mjx_emp.envs.mjx_quiet", "mjx_emp.envs.env", "mjx_emp.envs.scripted", "mjx_emp.gce", "mjx_emp.replay",
+    ["mjx_emp.envs.mjx_quiet", "mjx_emp.envs.parts", "mjx_emp.envs.env", "mjx_emp.envs.scripted", "mjx_emp.gce", "mjx_emp.replay",
      "mjx_emp.metrics"],
     ["mjx_emp.rollout.structures", "mjx_emp.rollout.hierarchy", "mjx_emp.rollout.collect", "mjx_emp.rollout.flat"],
     ["mjx_emp.nets"],

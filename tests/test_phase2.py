@@ -12,7 +12,7 @@ from tiny import TINY, TINY_PHASE2, tiny_after_two_epochs
 
 from mjx_emp.algos.he.presets import PRESETS
 from mjx_emp.algos.registry import all_presets
-from mjx_emp.envs.env import Torso
+from mjx_emp.envs.parts import Torso
 from mjx_emp.envs.registry import DOMAINS
 from mjx_emp.errors import ConfigError
 from mjx_emp.nets import AIM_EDGE, LevelParams
