@@ -1,7 +1,8 @@
 """The parts of an environment that only some domains have: a torso whose tilt and heading are
 read from an observation (:class:`Torso`), and a cage of walls a floor button opens (:class:`Cage`).
 
-Pure functions of observations and ``mjx.Data``, batched by broadcasting over leading axes.
+What they read of an observation broadcasts over leading axes; what they do to ``mjx.Data`` works on one
+environment, as ``Env.step`` does, and ``jax.vmap`` batches it.
 """
 
 from __future__ import annotations
