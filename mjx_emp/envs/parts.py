@@ -50,6 +50,11 @@ class Torso:
         pays for tilting pays (``tilt_cost``), what the reflex watches, what the flip table reads."""
         return 1.0 - self.up_axis_z(obs)
 
+    def upside_down(self, obs: jax.Array) -> jax.Array:
+        """Whether the torso's up axis points below the horizon (tilted past 90 degrees): a flip
+        for a planar torso, which is never reset, and what ``upright`` resets a free one on."""
+        return self.up_axis_z(obs) < 0.0
+
     def upright(self, qpos: jax.Array) -> jax.Array:
         """False once a free torso's up axis points below the horizon (tilted past 90 degrees).
 

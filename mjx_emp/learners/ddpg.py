@@ -87,7 +87,7 @@ def flipped(cut: jax.Array | None, next_obs: jax.Array, env: Env, flip_cost: flo
     down (a Half Cheetah on its back, which is never reset). None: no row can be one."""
     if flip_cost == 0.0:
         return cut
-    down = env.torso.up_axis_z(next_obs) < 0.0
+    down = env.torso.upside_down(next_obs)
     return down if cut is None else cut | down
 
 

@@ -264,7 +264,7 @@ def attempt_rows(env, top: Transition, first_end: np.ndarray, attempts: int) -> 
     goal = np.asarray(top.goal)
     before = np.linalg.norm(np.asarray(env.goal_of_obs(np.asarray(top.obs))) - goal, axis=-1)
     after = np.linalg.norm(np.asarray(env.goal_of_obs(np.asarray(top.next_obs))) - goal, axis=-1)
-    down_before, down_after = (np.asarray(env.torso.up_axis_z(top.obs)) < 0, np.asarray(env.torso.up_axis_z(top.next_obs)) < 0)
+    down_before, down_after = np.asarray(env.torso.upside_down(top.obs)), np.asarray(env.torso.upside_down(top.next_obs))
     rows = []
     for i in range(attempts):
         at = ended & (index == i)
