@@ -5,8 +5,8 @@ probability of improvement (:mod:`mjx_emp.report_stats`).
 
 Rows are read with :func:`mjx_emp.run.rows.read_rows`. Everything here is pure except the
 figure and block writers (``seed_band_figure``, and :mod:`mjx_emp.blocks` for ``--into``).
-``rliable``, ``matplotlib`` and the modules that load JAX (the plots, the flip tables) are
-imported inside the functions that use them, so a table costs neither.
+``rliable``, ``matplotlib`` and the plots, which load JAX, are imported inside the functions
+that use them, so a table costs neither.
 """
 
 from __future__ import annotations
@@ -26,6 +26,7 @@ from mjx_emp.algos.retired import flag_text
 from mjx_emp.blocks import read_text, write_block
 from mjx_emp.commands import ReportExperiment
 from mjx_emp.errors import ConfigError
+from mjx_emp.flip_tables import flip_text, pooled
 from mjx_emp.report_stats import (
     DEFAULT_REPS,
     METRICS,
@@ -333,10 +334,8 @@ def chosen_rows(rows: Sequence[dict], patterns: Sequence[str]) -> list[dict]:
 
 
 def row_flip_table(rows: Sequence[dict], name: str) -> str:
-    """Row ``name``'s flip tables pooled over its runs (:func:`mjx_emp.run.flips.pooled`), as
+    """Row ``name``'s flip tables pooled over its runs (:func:`mjx_emp.flip_tables.pooled`), as
     `mjx-emp eval` prints them; a row without one is a ConfigError naming the rows that have one."""
-    from mjx_emp.run.flips import flip_text, pooled  # deferred: run.flips loads JAX
-
     held = [row for row in rows if row["row"] == name and (row.get("figures") or {}).get("flip_table")]
     if not held:
         having = sorted({row["row"] for row in rows if (row.get("figures") or {}).get("flip_table")})

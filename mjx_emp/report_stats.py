@@ -8,7 +8,7 @@ imported where it is used: an optional dependency, ``mjx-emp[report]``).
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from mjx_emp.errors import ConfigError
+from mjx_emp.flip_tables import flips_per_100m
 
 DEFAULT_REPS = 2000
 """Bootstrap resamples per interval: a few tenths of a second per metric, and an interval
@@ -39,6 +40,9 @@ class Metric:
     lower_is_better: bool | None
     """Which way is better: True for lower, False for higher, None where the metric does not
     say (a figure named by its path); a table marks it ↓, ↑ or nothing."""
+    derive: Callable[[Any], float | None] | None = None
+    """A figure computed from what rows already hold at ``path`` (rows recorded before the
+    figure was named get it too); None: the value at ``path`` is the metric."""
 
     @property
     def heading(self) -> str:
@@ -47,8 +51,8 @@ class Metric:
 
 
 def _metric(name: str, path: tuple[str, ...], label: str, unit: str = "",
-            lower_is_better: bool | None = False) -> Metric:
-    return Metric(name, path, label, unit, lower_is_better)
+            lower_is_better: bool | None = False, derive: Callable[[Any], float | None] | None = None) -> Metric:
+    return Metric(name, path, label, unit, lower_is_better, derive)
 
 
 METRICS: dict[str, Metric] = {m.name: m for m in (
@@ -73,6 +77,8 @@ METRICS: dict[str, Metric] = {m.name: m for m in (
             "top-level greedy episodes that flip the robot (flip table)", "fraction", True),
     _metric("phase2_flip_share", ("figures", "phase2", "flip_table", "flip_share"),
             "phase-2 greedy episodes that flip the robot (flip table)", "fraction", True),
+    _metric("phase2_flips_per_100m", ("figures", "phase2", "flip_table", "by_attempt"),
+            "phase-2 flips per 100 m gained toward the goal (flip table)", "", True, flips_per_100m),
     _metric("env_steps", ("figures", "env_steps"), "env steps", ""),
     _metric("top_success_training", ("figures", "top_success_training"),
             "top-level success in training (mean of the last epochs)", "fraction"),
@@ -122,8 +128,9 @@ def as_number(value: Any) -> float | None:
 def metric_values(rows: Sequence[dict], metric: str | Metric) -> list[float]:
     """The metric's value in each row that has one, in row order; rows where it is missing,
     null or not a finite number are skipped (so ``len`` is the n an aggregate stands on)."""
-    path = metric_named(metric).path
-    numbers = (as_number(lookup(row, path)) for row in rows)
+    chosen = metric_named(metric)
+    held = (lookup(row, chosen.path) for row in rows)
+    numbers = (as_number(value if chosen.derive is None or value is None else chosen.derive(value)) for value in held)
     return [x for x in numbers if x is not None]
 
 

@@ -52,14 +52,15 @@ def test_the_package_exports_the_api_without_loading_jax():
 
 def test_the_cli_imports_helps_lists_and_reports_without_loading_jax():
     """`import mjx_emp.cli`, `--help` (the CLI's, a command's and a preset's), `presets` and
-    `report` load none of JAX, MuJoCo, orbax, flax or optax: they answer at once; JAX loads with
+    `report` (tables and flip tables) load none of JAX, MuJoCo, orbax, flax or optax: they answer at once; JAX loads with
     a command's handler. Parsing a command loads none either: `render` chooses MuJoCo's OpenGL
     after the parse, before MuJoCo is imported."""
     code = """
 import sys
 import mjx_emp.cli as cli
 for argv in (["--help"], ["sweep", "--help"], ["train", "ant-field-k1-cpu", "--help"], ["presets"],
-             ["report", "experiments/point-mass-levels.toml", "--reps", "10"]):
+             ["report", "experiments/point-mass-levels.toml", "--reps", "10"],
+             ["report", "experiments/ant-flips.toml", "--flip-table", "he-k1"]):
     sys.argv = ["mjx-emp", *argv]
     try:
         cli.main()
@@ -73,6 +74,7 @@ assert not heavy, heavy
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=ROOT)
     assert done.returncode == 0, done.stderr[-2000:]
     assert "usage: mjx-emp" in done.stdout and "ant-field-k1-cpu" in done.stdout and "| row |" in done.stdout
+    assert "flips per 100 m gained toward the goal" in done.stdout
 
 
 def test_every_algorithm_reports_in_one_schema():

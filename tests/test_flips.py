@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from tiny import TINY_PHASE2, tiny_after_two_epochs
 
+from mjx_emp import flip_tables
 from mjx_emp.envs.parts import Torso
 from mjx_emp.rollout.structures import Transition
 from mjx_emp.run import flips
@@ -90,7 +91,7 @@ def test_goal_places_and_subgoal_sizes_bin_the_episodes_that_flipped():
 def test_tables_of_runs_pool_their_counts():
     env, episodes = PitchEnv(), planted_episodes()
     one = flips.episode_flips(env, episodes, (4,))
-    both = flips.pooled([one, one])
+    both = flip_tables.pooled([one, one])
     assert both["episodes"] == 6 and both["flips"] == 4 and both["flip_share"] == pytest.approx(2 / 3)
     assert both["by_index"][0]["attempts"] == [8, 8, 8, 2]
     assert both["before_flip"]["flipped_tilt"] == one["before_flip"]["flipped_tilt"]
@@ -126,8 +127,9 @@ def test_phase1_and_phase2_tables_of_a_trained_agent_find_the_planted_flip(plant
     phase2 = flips.phase2_flips(trainer, trainer.init(state), jax.random.key(1), envs=8)
     assert phase2["episodes"] == 8 and phase2["flips"] > 0 and len(phase2["by_index"]) == 3
     assert phase2["by_attempt"][0]["episodes"] == 8
-    text = "\n".join(flips.flip_text([flips.pooled([t]) for t in levels], flips.pooled([phase2])))
+    text = "\n".join(flip_tables.flip_text([flip_tables.pooled([t]) for t in levels], flip_tables.pooled([phase2])))
     assert "| 0 | 32 |" in text and "level 0 flips per primitive step" in text and "phase 2:" in text
+    assert "flips per 100 m gained toward the goal: " in text
 
 
 def test_the_reflex_hands_control_back_to_phase_2_once_the_torso_tilts_past_it(monkeypatch):
@@ -188,7 +190,7 @@ def test_the_flip_figure_draws_each_tables_series():
     phase2 = {**table, "by_attempt": [{"attempt": 0, "episodes": 3, "cut_short": 1 / 3, "upside_down_after": 0.0,
                                                   "flipped": 1 / 3}],
               "by_subgoal_size": {"edges": [0.0, 0.5, None], "episodes": [3, 0], "flips": [2, 0], "share": [2 / 3, None]}}
-    hazard, tilt, spin, place, attempt, size = axes_content(flip_figure([flips.pooled([level])], phase2))
+    hazard, tilt, spin, place, attempt, size = axes_content(flip_figure([flip_tables.pooled([level])], phase2))
     assert hazard.series["level 0"] == ([0.0, 1.0, 2.0, 3.0], [0.0, 0.0, 0.25, 1.0])
     assert hazard.series["phase 2"] == hazard.series["level 0"]
     np.testing.assert_allclose(tilt.series["level 0, flipped"][1], table["before_flip"]["flipped_tilt"][:4])

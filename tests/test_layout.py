@@ -8,7 +8,7 @@ PACKAGE = ROOT / "mjx_emp"
 
 # Bottom first. A module may import modules of its own layer or of layers below it.
 LAYERS = [
-    ["mjx_emp.errors", "mjx_emp.tracing", "mjx_emp.counters", "mjx_emp.tables", "mjx_emp.shards"],
+    ["mjx_emp.errors", "mjx_emp.tracing", "mjx_emp.counters", "mjx_emp.tables", "mjx_emp.shards", "mjx_emp.flip_tables"],
     ["mjx_emp.checks", "mjx_emp.envs.registry"],
     ["mjx_emp.envs.mjx_quiet", "mjx_emp.envs.parts", "mjx_emp.envs.env", "mjx_emp.envs.scripted", "mjx_emp.gce", "mjx_emp.replay",
      "mjx_emp.metrics"],

@@ -68,6 +68,17 @@ def test_a_metric_path_steps_into_lists_by_index():
     assert metric_values(rows, "figures.flip_table.2.flip_share") == []
 
 
+def test_flips_per_100m_are_derived_from_the_attempts_a_row_holds():
+    """Flips over metres gained toward the goal, summed over attempts weighted by their episodes:
+    (10 x 0.1 + 5 x 0.2) flips over (10 x 2 + 5 x 1) m is 8 per 100 m; rows that gained nothing
+    or hold no attempts have no value."""
+    attempts = [{"episodes": 10, "flipped": 0.1, "progress": 2.0}, {"episodes": 5, "flipped": 0.2, "progress": 1.0}]
+    still = [{"episodes": 4, "flipped": 0.25, "progress": -0.5}]
+    rows = [{"figures": {"phase2": {"flip_table": {"by_attempt": attempts}}}},
+            {"figures": {"phase2": {"flip_table": {"by_attempt": still}}}}, {"figures": {"phase2": {}}}]
+    assert metric_values(rows, "phase2_flips_per_100m") == [pytest.approx(8.0)]
+
+
 def test_smaller_distances_beat_larger_ones_for_a_lower_is_better_metric():
     near, far = [0.1, 0.2, 0.3], [0.5, 0.6, 0.7]
     assert probability_of_improvement(near, far, lower_is_better=True, reps=REPS) == (1.0, 1.0, 1.0)
@@ -185,8 +196,8 @@ def test_read_rows_names_the_file_and_line_of_a_bad_line_before_the_last(tmp_pat
 
 
 def test_a_rows_flip_table_is_its_runs_tables_pooled_and_a_row_without_one_is_named():
+    from mjx_emp.flip_tables import flip_text, pooled
     from mjx_emp.report import row_flip_table
-    from mjx_emp.run.flips import flip_text, pooled
 
     level = {"level": 0, "episodes": 10, "flips": 1, "flip_share": 0.1,
              "by_index": [{"level": 0, "index": [0, 1], "attempts": [10, 9], "flips": [0, 1], "hazard": [0.0, 1 / 9]}],

@@ -18,6 +18,7 @@ import numpy as np
 
 from mjx_emp.algos.registry import GOAL_SPACES, algorithm_of
 from mjx_emp.errors import CheckpointError, ConfigError
+from mjx_emp.flip_tables import flip_text, pooled
 from mjx_emp.metrics import (
     LEVEL_FIGURES,
     aggregate_agent,
@@ -28,7 +29,7 @@ from mjx_emp.metrics import (
 )
 from mjx_emp.phase2.config import Phase2Config
 from mjx_emp.run import jobs, store
-from mjx_emp.run.flips import flip_text, phase1_flips, phase2_flips, pooled
+from mjx_emp.run.flips import phase1_flips, phase2_flips
 from mjx_emp.run.provenance import provenance
 from mjx_emp.run.rows import ROW_SCHEMA
 from mjx_emp.tables import spread_text
@@ -250,7 +251,7 @@ def evaluate_runs(run_dirs: list[Path], seed: int = 0, episodes: int = 400, comm
 
 
 def pooled_flip_tables(rows: list[dict]) -> dict | None:
-    """The runs' flip tables pooled (:func:`mjx_emp.run.flips.pooled`): ``levels`` (phase 1, per
+    """The runs' flip tables pooled (:func:`mjx_emp.flip_tables.pooled`): ``levels`` (phase 1, per
     level) and ``phase2`` (None unless every run has one); None for flat skill learners."""
     tables = [row["figures"].get("flip_table") for row in rows]
     if not tables or not all(tables):
