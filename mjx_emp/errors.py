@@ -46,6 +46,9 @@ class Interrupted(RuntimeError):
         super().__init__(message)
         self.signum = signum
 
+    def __reduce__(self):  # whole across processes: a sweep's worker hands it to the sweep
+        return type(self), (str(self), self.signum)
+
 
 class JobFailed(RuntimeError):
     """A sweep's job failed in its worker (a diverged run, a full disk, a bug); the message names

@@ -1,13 +1,12 @@
 """`mjx-emp sweep` and `mjx-emp report` on the committed smoke spec: a sweep completes, a second
-call trains nothing, a sweep killed with SIGKILL and called again (through submitit's local
-executor) ends with the rows of one never stopped, `mjx-emp eval` of a sweep's run gives its
+call trains nothing, a sweep stopped by SIGTERM says so in one line and called again (through
+submitit's local executor) ends with the rows of one never stopped, `mjx-emp eval` of a sweep's run gives its
 row again, the report prints IQM intervals, and bad specs are refused before anything trains."""
 
 from __future__ import annotations
 
 import dataclasses
 import json
-import os
 import signal
 import subprocess
 import time
@@ -102,23 +101,31 @@ def test_report_prints_iqm_intervals_and_writes_a_block(swept, tmp_path):
     assert "old" not in text and text.endswith("<!-- /report:smoke -->\nafter\n") and "mjx-emp sweep" in text
 
 
-def test_a_killed_sweep_called_again_through_submitit_ends_with_the_same_rows(swept, tmp_path):
-    """SIGKILL the whole sweep (its worker too) while the first row's seeds train, then call it
-    again with submitit's local executor: the row resumes as one program, and its rows equal the
-    uninterrupted sweep's in every non-timing field. The spec is the smoke spec's first row (the
-    one the kill lands in); the second row would train afresh as the uninterrupted sweep did."""
+def test_a_stopped_sweep_says_so_in_one_line_and_called_again_ends_with_the_same_rows(swept, tmp_path):
+    """SIGTERM the sweep alone (not its worker) while the first row's seeds train: it passes the
+    signal on, its worker stops training at a checkpoint, and the sweep exits 143 with one line
+    saying how to resume, no traceback. Called again with submitit's local executor, the row
+    resumes as one program and its rows equal the uninterrupted sweep's in every non-timing
+    field. The spec is the smoke spec's first row (the one the signal lands in); the second row
+    would train afresh as the uninterrupted sweep did."""
     spec = tmp_path / SMOKE.name
     spec.write_text(SMOKE.read_text().split('\n[[row]]\nname = "he-k2"')[0])
     process = subprocess.Popen(mjx_emp("sweep", str(spec), "--runs", str(tmp_path / "runs"), "--results",
                                        str(tmp_path / "rows.jsonl")),
-                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+                               stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True)
     first_epoch = tmp_path / "runs" / "smoke-point-mass" / "he-k1-s0" / "metrics.jsonl"
     deadline = time.monotonic() + 400
     while not (first_epoch.exists() and first_epoch.read_text().count("\n") >= 1):
         assert process.poll() is None and time.monotonic() < deadline, "the sweep ended before its first epoch"
         time.sleep(0.02)
-    os.killpg(process.pid, signal.SIGKILL)
-    process.wait()
+    process.send_signal(signal.SIGTERM)
+    _, stderr = process.communicate(timeout=300)
+    assert process.returncode == 128 + signal.SIGTERM, stderr[-3000:]
+    assert "Traceback" not in stderr and len(stderr.strip().splitlines()) == 1, stderr[-3000:]
+    assert stderr.startswith("mjx-emp: sweep smoke-point-mass stopped by SIGTERM with 0 of 2 runs evaluated; its "
+                             "running jobs stopped at their newest checkpoints; `mjx-emp sweep "), stderr
+    worker_log = (tmp_path / "runs" / "smoke-point-mass" / "logs" / "he-k1.log").read_text()
+    assert "stopped by SIGTERM; the newest checkpoint is epoch" in worker_log, worker_log[-2000:]
     assert not (tmp_path / "rows.jsonl").exists() or not read_rows(tmp_path / "rows.jsonl")
     result = run_cli("sweep", str(spec), "--runs", str(tmp_path / "runs"), "--results", str(tmp_path / "rows.jsonl"),
                      "--executor", "submitit-local")

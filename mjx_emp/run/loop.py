@@ -117,7 +117,7 @@ def train(program, state, members: list[Member], keep_checkpoints: int = 3,
     epochs = members[0].trainer.cfg.epochs
     budgets = [member.trainer.cfg.max_env_steps for member in members]
     lead = is_lead()  # with several hosts, process 0 alone writes metrics (and checkpoints)
-    stops = _SignalStop()
+    stops = SignalStop()
     with contextlib.ExitStack() as stack:
         kept = [stack.enter_context(Checkpoints(member.run_dir, keep_checkpoints)) for member in members]
         logs = [stack.enter_context(_metrics_log(member.run_dir) if lead else open(os.devnull, "wb"))
@@ -175,10 +175,11 @@ def _refuse_divergence(members: list[Member], kept: list, parts: list[tuple[Any,
     )
 
 
-class _SignalStop:
-    """While training, SIGINT and SIGTERM raise :class:`Interrupted`: at once between two Python
-    steps (a running epoch's compiled call finishes first), or, inside :meth:`held` (an epoch's
-    checkpoint and metrics line, which belong together), as soon as it ends."""
+class SignalStop:
+    """Inside :meth:`installed`, SIGINT and SIGTERM raise :class:`Interrupted` (its message the
+    signal's name): at once between two Python steps (a running compiled call finishes first),
+    or, inside :meth:`held` (writes that belong together: an epoch's checkpoint and metrics
+    line, a sweep's rows), as soon as it ends. Training and sweeps stop this way."""
 
     def __init__(self):
         self.holding, self.pending = False, None

@@ -36,10 +36,11 @@ from mjx_emp.commands import (
     ResumeExperiment,
     TrainExperiment,
 )
-from mjx_emp.errors import ConfigError, JobFailed
+from mjx_emp.errors import ConfigError, Interrupted, JobFailed
 from mjx_emp.phase2.config import Phase2Config
 from mjx_emp.run import jobs, store
 from mjx_emp.run.evaluate import evaluation_row
+from mjx_emp.run.loop import SignalStop
 from mjx_emp.run.provenance import run_record
 from mjx_emp.run.rows import RESULTS_DIR, append_row, read_rows
 from mjx_emp.run.seeds import resume_seeds
@@ -223,9 +224,13 @@ def run_job(job: Job) -> list[dict]:
     Its output goes to the job's log file."""
     with _output_to(Path(job.log)):
         print(f"== {time.strftime('%Y-%m-%d %H:%M:%S')} row {job.row.name} of {job.spec}", flush=True)
-        done = train_row(job)
-        jax.clear_caches()  # each step compiles its own programs; memory mappings are finite (vm.max_map_count)
-        done += phase2_row(job)
+        try:
+            done = train_row(job)
+            jax.clear_caches()  # each step compiles its own programs; memory mappings are finite (vm.max_map_count)
+            done += phase2_row(job)
+        except Interrupted as stop:
+            print(f"== {time.strftime('%Y-%m-%d %H:%M:%S')} {stop}", flush=True)
+            raise
 
         rows = []
         for run_dir, eval_seed in zip(job.run_dirs, job.eval_seeds):
@@ -378,25 +383,49 @@ def sweep(spec_path: str, runs: str = "", results: str = "", workers: int = 1, e
     pool = _executor(executor, workers, runs_root / spec.name / "submitit", spec.slurm)
     done_runs = len(todo.current)
     limit = len(todo.jobs) if executor == "slurm" else workers  # Slurm queues them; local workers take `workers`
+    stops = SignalStop()
     try:
-        for job, future in schedule(todo.jobs, limit, lambda job: pool.submit(run_job, job),
-                                    functools.partial(next_done, executor=executor)):
-            rows = job_rows(job, future)
-            for row in rows:
-                append_row(results_path, row)
-            written += rows
-            done_runs += len(rows)
-            elapsed = time.monotonic() - started
-            left = todo.total - done_runs
-            per_run = elapsed / max(1, done_runs - len(todo.current))
-            eta = f"; about {_duration(per_run * left / workers)} left" if left else ""
-            did = "; ".join(rows[0]["evaluation"]["did"]) or "evaluated"
-            report(f"[{done_runs}/{todo.total} runs] row {job.row.name}: {did} ({_duration(elapsed)} so far{eta}); "
-                   f"log {job.log}")
-    finally:
-        if hasattr(pool, "shutdown"):
-            pool.shutdown(wait=True, cancel_futures=True)
+        with stops.installed():
+            try:
+                for job, future in schedule(todo.jobs, limit, lambda job: pool.submit(run_job, job),
+                                            functools.partial(next_done, executor=executor)):
+                    rows = job_rows(job, future)
+                    with stops.held():  # a job's rows go to the store together
+                        for row in rows:
+                            append_row(results_path, row)
+                    written += rows
+                    done_runs += len(rows)
+                    elapsed = time.monotonic() - started
+                    left = todo.total - done_runs
+                    per_run = elapsed / max(1, done_runs - len(todo.current))
+                    eta = f"; about {_duration(per_run * left / workers)} left" if left else ""
+                    did = "; ".join(rows[0]["evaluation"]["did"]) or "evaluated"
+                    report(f"[{done_runs}/{todo.total} runs] row {job.row.name}: {did} ({_duration(elapsed)} so far"
+                           f"{eta}); log {job.log}")
+            except Interrupted as stop:
+                if executor == "local":
+                    signal_workers(stop.signum)
+                raise
+            finally:
+                if hasattr(pool, "shutdown"):
+                    pool.shutdown(wait=True, cancel_futures=True)
+    except Interrupted as stop:
+        jobs = ("its running jobs stopped at their newest checkpoints" if executor == "local"
+                else "jobs already handed to submitit go on until they end or are cancelled")
+        raise Interrupted(f"sweep {spec.name} stopped by {signal.Signals(stop.signum).name} with {done_runs} of "
+                          f"{todo.total} runs evaluated; {jobs}; `{command}` resumes it", stop.signum) from None
     return written
+
+
+def signal_workers(signum: int) -> None:
+    """Pass ``signum`` on to this process's local workers, so that a job training stops at its
+    newest checkpoint (:class:`~mjx_emp.run.loop.SignalStop`) and the pool can shut down, whether
+    the signal reached the whole process group (Ctrl-C) or the sweep alone (``kill``)."""
+    for worker in multiprocessing.active_children():
+        try:
+            os.kill(worker.pid, signum)
+        except ProcessLookupError:
+            pass
 
 
 def next_done(running: dict, executor: str) -> Any:
@@ -416,6 +445,10 @@ def job_rows(job: Job, future: Any) -> list[dict]:
     """A finished job's rows; a job that failed raises here, naming its row and log."""
     try:
         return future.result()
+    except Interrupted as err:  # the signal reached the worker too (Ctrl-C): the sweep stops as one
+        raise Interrupted(str(err), err.signum) from None
+    except KeyboardInterrupt:  # ... where the worker was not training (phase 2's evaluation)
+        raise Interrupted("SIGINT", signal.SIGINT) from None
     except ConfigError as err:
         raise ConfigError(f"{err} (log: {job.log})") from None
     except Exception as err:  # a worker's failure: its row is named, its log holds the traceback
