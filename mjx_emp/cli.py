@@ -13,6 +13,7 @@ import dataclasses
 import functools
 import io
 import json
+import signal
 import sys
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -220,12 +221,15 @@ FAILURES = (
 def exit_codes() -> Iterator[None]:
     """Run a command inside: bad input exits 2, divergence, a failed checkpoint write or running out
     of memory 1, a failed file write 1 (2 for a path the user chose), no offscreen GL 3,
-    SIGINT/SIGTERM 130/143, each with a one-line reason."""
+    SIGINT/SIGTERM 130/143 (Ctrl-C anywhere, not only in training), each with a one-line reason."""
     try:
         yield
     except Interrupted as stop:
         say(str(stop))
         sys.exit(128 + stop.signum)
+    except KeyboardInterrupt:  # Ctrl-C where no checkpoint is being kept (eval, phase 2's figures, a report)
+        say("stopped by SIGINT before it finished; run it again for its outputs")
+        sys.exit(128 + signal.SIGINT)
     except WriteError as err:
         say(f"write failed: {err}")
         sys.exit(err.exit_code)

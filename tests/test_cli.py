@@ -248,3 +248,14 @@ def test_a_diverging_run_exits_1_through_the_cli_keeping_the_last_good_checkpoin
             f"epoch; the last good checkpoint is epoch 0 in {run_dir / 'checkpoints'}") in result.stderr
     assert sorted(p.name for p in (run_dir / "checkpoints").iterdir()) == ["0"]
     assert (run_dir / "metrics.jsonl").read_text() == ""
+
+
+def test_ctrl_c_outside_training_exits_130_with_one_line(capsys):
+    """Ctrl-C where no checkpoint is kept (an eval, a report) ends in one line and 130, not a
+    traceback; training's own stop, which names its checkpoint, is test_checkpoint's."""
+    from mjx_emp.cli import exit_codes
+
+    with pytest.raises(SystemExit) as stop, exit_codes():
+        raise KeyboardInterrupt
+    assert stop.value.code == 130
+    assert capsys.readouterr().err == "mjx-emp: stopped by SIGINT before it finished; run it again for its outputs\n"
