@@ -110,17 +110,29 @@ def level_policy(env: Env, actor: MLP, box_fn: BoxFn, aim_prior: bool = False) -
     return policy
 
 
-def aimed_policy(env: Env, box_fn: BoxFn, reach: float = 1.0) -> LevelPolicy:
+def central_box(box_fn: BoxFn, reach: float) -> BoxFn:
+    """``box_fn``'s box shrunk about its centre: the same shift, half-widths times ``reach``
+    (1: the box itself). Subgoals in it are shorter, away from the edge, where skills miss
+    and flip most."""
+    if reach == 1.0:
+        return box_fn
+
+    def box(params: Any, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
+        shift, half_width = box_fn(params, obs)
+        return shift, reach * half_width
+
+    return box
+
+
+def aimed_policy(env: Env, box_fn: BoxFn) -> LevelPolicy:
     """A scripted policy that aims every subgoal straight at its goal: clip(goal - h(s), the box
     at s). Put on top of frozen skills, it bounds what they can do on a goal-reaching task
-    without any learning above them (the chaining diagnostic). With ``reach`` < 1 it clips into
-    the box's centre (half-widths scaled by ``reach``): shorter subgoals, away from the edge
-    where the skills miss most."""
+    without any learning above them (the chaining diagnostic)."""
 
     def policy(params: LevelParams, obs: jax.Array, goal: jax.Array, key: jax.Array) -> jax.Array:
         del key
         shift, half_width = box_fn(params.box, obs)
-        return jnp.clip(env.goal_offset(obs, goal), shift - reach * half_width, shift + reach * half_width)
+        return jnp.clip(env.goal_offset(obs, goal), shift - half_width, shift + half_width)
 
     return policy
 

@@ -59,8 +59,11 @@ def test_region_is_centred_on_h_s0_plus_the_offset(tiny_phase2):
     np.testing.assert_allclose(high, start + [3.0, 1.0])
 
 
-def test_subgoals_stay_inside_the_top_goal_space_even_with_exploration_noise(tiny_phase2):
+@pytest.mark.parametrize("reach", [1.0, 0.4])
+def test_subgoals_stay_inside_the_top_goal_space_even_with_exploration_noise(tiny_phase2, reach):
+    """... and with ``subgoal_reach`` inside its central share, whose edge the noise reaches."""
     trainer, _, state = tiny_phase2
+    trainer = dataclasses.replace(trainer, cfg=dataclasses.replace(trainer.cfg, subgoal_reach=reach))
     k, env = trainer.level, trainer.env
     obs = jnp.asarray(trainer.phase1.initial_obs) + 0.5 * jax.random.normal(jax.random.key(1), (256, env.obs_size))
     goals = 3.0 * jax.random.normal(jax.random.key(2), (256, env.goal_size))
@@ -68,8 +71,8 @@ def test_subgoals_stay_inside_the_top_goal_space_even_with_exploration_noise(tin
     keys = jax.random.split(jax.random.key(3), 256)
     subgoals = jax.vmap(trainer.hierarchy.policies[k], (None, 0, 0, 0))(params, obs, goals, keys)
     shift, half_width = jax.vmap(trainer.phase1.nets.learned_box(k - 1), (None, 0))(state.goal_space_actors[k - 1], obs)
-    assert (np.abs(np.asarray(subgoals - shift)) <= np.asarray(half_width) + 1e-5).all()
-    assert np.asarray(jnp.abs(subgoals - shift) > 0.9 * half_width).any()  # the noise reaches the box's edge
+    assert (np.abs(np.asarray(subgoals - shift)) <= reach * np.asarray(half_width) + 1e-5).all()
+    assert np.asarray(jnp.abs(subgoals - shift) > 0.9 * reach * half_width).any()  # the noise reaches the edge
 
 
 def test_two_epochs_train_the_added_level_only_and_do_not_recompile(tiny_phase2):
@@ -179,6 +182,8 @@ def test_a_cut_backup_scores_the_fall_for_ever_and_bootstraps_nothing():
     ("aim_weight", -1.0, "aim_weight: must be >= 0"),
     ("flip_cost", -1.0, "flip_cost: must be >= 0"),
     ("reflex_tilt", 2.5, "reflex_tilt: a tilt in [0, 2)"),
+    ("subgoal_reach", 0.0, "subgoal_reach: a share of the top box's half-widths in (0, 1]"),
+    ("subgoal_reach", 1.5, "subgoal_reach: a share of the top box's half-widths in (0, 1]"),
 ])
 def test_bad_phase2_values_name_the_field(field, value, message):
     with pytest.raises(ConfigError, match=message.replace("[", r"\[").replace("(", r"\(").replace(")", r"\)")):

@@ -6,6 +6,7 @@ row again, the report prints IQM intervals, and bad specs are refused before any
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import signal
 import subprocess
@@ -99,6 +100,25 @@ def test_report_prints_iqm_intervals_and_writes_a_block(swept, tmp_path):
     assert he_k2.count("[") >= 4 and "| 2 |" in he_k2  # an interval per metric, n = 2 seeds
     text = page.read_text()
     assert "old" not in text and text.endswith("<!-- /report:smoke -->\nafter\n") and "mjx-emp sweep" in text
+
+
+def test_rows_made_before_a_config_field_existed_stay_current_and_a_changed_value_does_not(swept):
+    """A stored row whose configs lack a field added since (dropped here from its records) still
+    answers the spec: the field's default is what it ran with. A value that differs does not."""
+    from mjx_emp.run.sweep import row_is_current
+
+    spec, stored = load_spec(SMOKE), read_rows(swept / "rows.jsonl")[0]
+    row = next(r for r in spec.rows if r.name == stored["row"])
+    current = functools.partial(row_is_current, row=row, seed=stored["seed"], eval_seed=spec.run_eval_seed(stored["seed"]))
+    assert current(stored)
+    older = json.loads(json.dumps(stored))
+    del older["train"]["config"]["flip_cost"], older["phase2_config"]["subgoal_reach"]
+    assert current(older)
+    changed = json.loads(json.dumps(stored))
+    changed["phase2_config"]["subgoal_reach"] = 0.5
+    assert not current(changed)
+    unknown = {**stored, "train": {**stored["train"], "config": "unknown"}}
+    assert not current(unknown)
 
 
 def test_a_stopped_sweep_says_so_in_one_line_and_called_again_ends_with_the_same_rows(swept, tmp_path):

@@ -87,6 +87,12 @@ class Phase2Config:
     passes this, so the policy chooses its next subgoal before the robot is on its back
     (``rollout.hierarchy.Hierarchy.reflex_tilt``). The attempt counts as one of the n. A
     threshold to start from is the one the flip table's warning reports (`mjx-emp eval`)."""
+    subgoal_reach: float = 1.0
+    """The share of the top level's box, in half-widths about its centre, that the learned
+    policy's subgoals are squashed into (1: the whole box, the paper's). Below 1 the skills
+    are asked for shorter moves, which they make at a slower pace: the goals near a box's edge
+    are where skills flip most per metre gained (the flip table's goal places). The scripted
+    diagnostics keep the whole box."""
     aim_prior: bool = False
     """Start the policy as the scripted aimed one (each subgoal straight at the goal, within the
     top goal space) and learn a correction to it: the actor's output is added before the tanh to
@@ -131,6 +137,9 @@ def check_phase2_config(cfg: Phase2Config, goal_size: int | None = None) -> None
         raise ConfigError(f"aim_weight: must be >= 0; got {cfg.aim_weight}")
     if not cfg.flip_cost >= 0:
         raise ConfigError(f"flip_cost: must be >= 0; got {cfg.flip_cost}")
+    if not 0 < cfg.subgoal_reach <= 1:
+        raise ConfigError(f"subgoal_reach: a share of the top box's half-widths in (0, 1] (1: the whole box); "
+                          f"got {cfg.subgoal_reach}")
     if not 0 <= cfg.reflex_tilt < 2:
         raise ConfigError(f"reflex_tilt: a tilt in [0, 2) (0: no reflex; 1 is on its side); got {cfg.reflex_tilt}")
     if cfg.aim_weight > 0 and not cfg.aim_prior:

@@ -50,6 +50,7 @@ from mjx_emp.nets import (
     MLP,
     LevelParams,
     aimed_policy,
+    central_box,
     goal_conditioned_q,
     goal_features,
     greedy_batch,
@@ -329,9 +330,10 @@ class Phase2Trainer(Phase2Loop):
         object.__setattr__(self, "identity", compile_identity(self.cfg))
         k, phase1 = self.level, self.phase1.cfg
         box = self.phase1.nets.learned_box(k - 1)
-        policy = {"learned": lambda: level_policy(self.env, self.actor_net, box, aim_prior=self.cfg.aim_prior),
+        policy = {"learned": lambda: level_policy(self.env, self.actor_net, central_box(box, self.cfg.subgoal_reach),
+                                                  aim_prior=self.cfg.aim_prior),
                   "aimed": lambda: aimed_policy(self.env, box),
-                  "aimed_half": lambda: aimed_policy(self.env, box, reach=0.5),
+                  "aimed_half": lambda: aimed_policy(self.env, central_box(box, 0.5)),
                   "random": lambda: random_policy(box)}[self.top]()
         hierarchy = Hierarchy(
             self.env, self.phase1.hierarchy.policies + (policy,),

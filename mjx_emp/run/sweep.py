@@ -30,7 +30,8 @@ from typing import Any
 
 import jax
 
-from mjx_emp.checks import compile_identity
+from mjx_emp.algos.registry import config_from_json
+from mjx_emp.checks import compile_identity, config_from_dict
 from mjx_emp.commands import (
     Phase2Experiment,
     ResumeExperiment,
@@ -107,10 +108,24 @@ def row_is_current(stored: dict | None, row: Row, seed: int, eval_seed: int, cov
 
     phase2 = None if row.phase2 is None else json.loads(json.dumps(dataclasses.asdict(row.phase2)))
     train, evaluation = stored.get("train", {}), stored.get("evaluation", {})
-    return (train.get("config") == json.loads(json.dumps(store.config_json(seed_config(row, seed))))
-            and task(stored.get("phase2_config")) == task(phase2)
+    return (as_loaded_today(train.get("config")) == json.loads(json.dumps(store.config_json(seed_config(row, seed))))
+            and task(as_loaded_today(stored.get("phase2_config"), Phase2Config)) == task(phase2)
             and evaluation.get("seed") == eval_seed and evaluation.get("episodes") == row.episodes
             and evaluation.get("coverage_draws", 1) == coverage_draws)
+
+
+def as_loaded_today(config: Any, config_type: type | None = None) -> Any:
+    """A row's recorded config as a run directory's config.json of it would load now, in JSON
+    form: fields added since the row was made take their defaults (an option is off by default,
+    so the row ran without it); ``config`` itself where it does not load (``unknown``, a field
+    since removed), which matches no spec's config."""
+    if not isinstance(config, dict):
+        return config
+    try:
+        loaded = config_from_json(config) if config_type is None else config_from_dict(config, config_type)
+    except (ConfigError, TypeError, ValueError):
+        return config
+    return json.loads(json.dumps(store.config_json(loaded)))
 
 
 # ---- a job: train, phase 2, evaluate -----------------------------------------------------------
