@@ -84,6 +84,10 @@ METRICS: dict[str, Metric] = {m.name: m for m in (
             "top-level success in training (mean of the last epochs)", "fraction"),
     _metric("phase2_aimed_half_min_distance", ("figures", "phase2", "aimed_half", "min_distance"),
             "phase-2 aimed-within-half min distance", "m", True),
+    _metric("phase2_aimed_cut_short", ("figures", "phase2", "aimed", "cut_short"),
+            "phase-2 aimed episodes ended by a flip", "fraction", True),
+    _metric("phase2_aimed_half_cut_short", ("figures", "phase2", "aimed_half", "cut_short"),
+            "phase-2 aimed-within-half episodes ended by a flip", "fraction", True),
 )}
 """Every metric a report can show, by name. The volume's unit is m² for (x, y) goals and m for
 x goals; one table never mixes environments, so the unit is named once for both."""
