@@ -425,10 +425,10 @@ def sweep(spec_path: str, runs: str = "", results: str = "", workers: int = 1, e
                 if hasattr(pool, "shutdown"):
                     pool.shutdown(wait=True, cancel_futures=True)
     except Interrupted as stop:
-        jobs = ("its running jobs stopped at their newest checkpoints" if executor == "local"
-                else "jobs already handed to submitit go on until they end or are cancelled")
+        running = ("its running jobs stopped at their newest checkpoints" if executor == "local"
+                   else "jobs already handed to submitit go on until they end or are cancelled")
         raise Interrupted(f"sweep {spec.name} stopped by {signal.Signals(stop.signum).name} with {done_runs} of "
-                          f"{todo.total} runs evaluated; {jobs}; `{command}` resumes it", stop.signum) from None
+                          f"{todo.total} runs evaluated; {running}; `{command}` resumes it", stop.signum) from None
     return written
 
 
@@ -460,8 +460,8 @@ def job_rows(job: Job, future: Any) -> list[dict]:
     """A finished job's rows; a job that failed raises here, naming its row and log."""
     try:
         return future.result()
-    except Interrupted as err:  # the signal reached the worker too (Ctrl-C): the sweep stops as one
-        raise Interrupted(str(err), err.signum) from None
+    except Interrupted:  # the signal reached the worker too (Ctrl-C): the sweep stops, not a job failure
+        raise
     except KeyboardInterrupt:  # ... where the worker was not training (phase 2's evaluation)
         raise Interrupted("SIGINT", signal.SIGINT) from None
     except ConfigError as err:
