@@ -188,7 +188,7 @@ def test_the_flip_figure_draws_each_tables_series():
     level = {**table, "level": 0, "by_goal_place": flips.goal_place(np.zeros((3, 1)) + [[0.1], [0.6], [0.9]],
                                                                         np.array([True, True, False]))}
     phase2 = {**table, "by_attempt": [{"attempt": 0, "episodes": 3, "cut_short": 1 / 3, "upside_down_after": 0.0,
-                                                  "flipped": 1 / 3}],
+                                                  "flipped": 1 / 3, "progress": 2.0}],
               "by_subgoal_size": {"edges": [0.0, 0.5, None], "episodes": [3, 0], "flips": [2, 0], "share": [2 / 3, None]}}
     hazard, tilt, spin, place, attempt, size = axes_content(flip_figure([flip_tables.pooled([level])], phase2))
     assert hazard.series["level 0"] == ([0.0, 1.0, 2.0, 3.0], [0.0, 0.0, 0.25, 1.0])
@@ -197,3 +197,4 @@ def test_the_flip_figure_draws_each_tables_series():
     np.testing.assert_allclose(spin.series["level 0, upright"][1][:3], [0.1, 0.1, 0.1], rtol=1e-6)  # float32
     assert place.series["level 0"] == ([0.125, 0.625, 0.875], [1.0, 1.0, 0.0])
     assert attempt.series["phase 2"] == ([0.0], [1 / 3]) and size.series["phase 2"] == ([0.0], [2 / 3])
+    assert attempt.title == "phase 2: flips by attempt (16.67 per 100 m gained)"  # one flip over 3 x 2 m

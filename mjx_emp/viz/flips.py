@@ -1,10 +1,11 @@
 """The flip figure: where a run's skills flip the robot, drawn from the pooled flip tables
-(:mod:`mjx_emp.run.flips`) that `mjx-emp eval` prints."""
+(:mod:`mjx_emp.flip_tables`) that `mjx-emp eval` prints."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
+from mjx_emp.flip_tables import flips_per_100m
 from mjx_emp.viz.plots import LEVEL_COLOURS, pyplot, save_figure
 
 PHASE2_COLOUR = "#000000"
@@ -53,7 +54,7 @@ def flip_figure(levels: list[dict], phase2: dict | None):
              (tilt, "torso tilt before the end", "steps before the end (0: the last action's start)", "1 - up z"),
              (spin, "torso angular speed before the end", "steps before the end", "rad/s"),
              (place, "flips by the goal's place in the box", "largest |noise| (0 centre, 1 edge)", "share flipped"),
-             (attempt, "phase 2: flips by attempt", "attempt index", "share flipped"),
+             (attempt, "phase 2: flips by attempt" + _rate_text(phase2), "attempt index", "share flipped"),
              (size, "phase 2: flips by subgoal size", "subgoal distance from h(s) (m)", "share flipped"))
     for ax, title, xlabel, ylabel in texts:
         ax.set_title(title, fontsize=10)
@@ -65,6 +66,11 @@ def flip_figure(levels: list[dict], phase2: dict | None):
     fig.suptitle(f"Where the skills flip the robot ({runs} run(s) pooled, greedy episodes)")
     fig.tight_layout()
     return fig
+
+
+def _rate_text(phase2: dict | None) -> str:
+    rate = None if phase2 is None else flips_per_100m(phase2["by_attempt"])
+    return "" if rate is None else f" ({rate:.2f} per 100 m gained)"
 
 
 def plot_flips(levels: list[dict], phase2: dict | None, path: Path) -> Path:
