@@ -106,9 +106,9 @@ def row_is_current(stored: dict | None, row: Row, seed: int, eval_seed: int, cov
     def task(phase2: dict | None) -> dict | None:  # the phase-1 epoch it ran on is the run's, not the spec's
         return None if phase2 is None else {**phase2, "phase1_epoch": None}
 
-    phase2 = None if row.phase2 is None else json.loads(json.dumps(dataclasses.asdict(row.phase2)))
+    phase2 = None if row.phase2 is None else recorded_form(row.phase2)
     train, evaluation = stored.get("train", {}), stored.get("evaluation", {})
-    return (as_loaded_today(train.get("config")) == json.loads(json.dumps(store.config_json(seed_config(row, seed))))
+    return (as_loaded_today(train.get("config")) == recorded_form(seed_config(row, seed))
             and task(as_loaded_today(stored.get("phase2_config"), Phase2Config)) == task(phase2)
             and evaluation.get("seed") == eval_seed and evaluation.get("episodes") == row.episodes
             and evaluation.get("coverage_draws", 1) == coverage_draws)
@@ -125,7 +125,12 @@ def as_loaded_today(config: Any, config_type: type | None = None) -> Any:
         loaded = config_from_json(config) if config_type is None else config_from_dict(config, config_type)
     except (ConfigError, TypeError, ValueError):
         return config
-    return json.loads(json.dumps(store.config_json(loaded)))
+    return recorded_form(loaded)
+
+
+def recorded_form(cfg: Any) -> dict:
+    """``cfg`` as a row records it: config.json's form, through JSON (tuples as lists)."""
+    return json.loads(json.dumps(store.config_json(cfg)))
 
 
 # ---- a job: train, phase 2, evaluate -----------------------------------------------------------
