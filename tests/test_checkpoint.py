@@ -517,6 +517,33 @@ def test_a_reader_leaves_a_checkpoint_being_written_alone(saved_run, tmp_path):
     assert writing.exists()
 
 
+def test_a_checkpoint_removed_while_a_reader_lists_them_is_passed_over(saved_run, tmp_path, monkeypatch):
+    """A writer's retention can remove a step folder after orbax has listed it and before it reads
+    the folder's time; that step is simply gone, and the reader lists again and loads the newest
+    one there is (planted: the folder is removed as orbax looks for the step's metadata file, so
+    orbax falls back to the folder's own time)."""
+    run_dir, states = saved_run
+    copy = tmp_path / "run"
+    shutil.copytree(run_dir, copy, symlinks=True)
+    vanishing = copy / "checkpoints" / "1"
+    metadata = vanishing / "_CHECKPOINT_METADATA"
+    assert metadata.exists()
+    real_stat, removed = os.stat, []
+
+    def stat_after_retention(path, *args, **kwargs):
+        if str(path) == str(metadata) and not removed:
+            removed.append(path)
+            shutil.rmtree(vanishing)
+        return real_stat(path, *args, **kwargs)
+
+    monkeypatch.setattr(os, "stat", stat_after_retention)
+    with Checkpoints(copy, read_only=True) as checkpoints:
+        epoch, restored = checkpoints.restore_latest(states[2], TINY)
+        assert removed and not vanishing.exists()
+        assert checkpoints.epochs() == [2] and epoch == 2
+        assert_bitwise_equal(restored, states[2])
+
+
 def test_a_resume_to_fewer_epochs_than_done_is_refused_before_anything_is_rewritten(saved_run, tmp_path, capsys):
     run_dir, _ = saved_run
     copy = tmp_path / "run"

@@ -20,9 +20,9 @@ import logging
 import os
 import re
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import jax
 import numpy as np
@@ -56,6 +56,8 @@ A checkpoint without the number was written before formats were numbered (format
 read when its arrays are laid out as format 1's are, and refused, naming its format, when not."""
 
 FORMAT_KEY = "format"
+
+T = TypeVar("T")
 
 
 def config_mismatches(saved: dict, expected: Any) -> list[str]:
@@ -120,6 +122,20 @@ RETENTION_RETRIES = 20
 """How often a reader starts again after the checkpoint it read was removed under it."""
 
 
+def listed_again_while_removed(list_steps: Callable[[], T]) -> T:
+    """``list_steps()`` (orbax listing a run's checkpoints), listed again where a step vanished
+    during it: orbax lists the step folders and then reads each one's time, so a writer's
+    retention removing a step between the two raises FileNotFoundError for a folder that simply
+    is no longer there. After :data:`RETENTION_RETRIES` such listings the error stands."""
+    for attempt in range(RETENTION_RETRIES):
+        try:
+            return list_steps()
+        except FileNotFoundError:
+            if attempt == RETENTION_RETRIES - 1:
+                raise
+    raise AssertionError("unreachable")
+
+
 @dataclasses.dataclass
 class Checkpoints:
     """The checkpoints of one run directory: save every epoch, restore the latest good one."""
@@ -148,9 +164,9 @@ class Checkpoints:
                 max_to_keep=None if self.read_only else self.keep, cleanup_tmp_directories=not self.read_only,
                 read_only=self.read_only, enable_async_checkpointing=True, **several_hosts,
             )
-            self.manager = None if jax.process_index() != 0 else ocp.CheckpointManager(
-                self.directory.absolute(), options=options, item_names=("state", "layout", "config", "digests"),
-            )
+            self.manager = None if jax.process_index() != 0 else listed_again_while_removed(
+                lambda: ocp.CheckpointManager(self.directory.absolute(), options=options,
+                                              item_names=("state", "layout", "config", "digests")))
 
     @property
     def directory(self) -> Path:
@@ -302,7 +318,7 @@ class Checkpoints:
             found = self._restore_newest(template, expected, fallback)
             if found is not None:
                 return found
-            self.manager.reload()  # the trainer moved on: read its listing again
+            listed_again_while_removed(self.manager.reload)  # the trainer moved on: read its listing again
         raise CheckpointError(f"{self.directory}: every checkpoint was removed while it was read, "
                               f"{RETENTION_RETRIES} times; is a trainer keeping very few (--keep-checkpoints)?")
 
@@ -312,7 +328,7 @@ class Checkpoints:
         retention removes the older ones right after, so a read can meet one half deleted)."""
         if not self.step_dir(epoch).exists():
             return True
-        self.manager.reload()
+        listed_again_while_removed(self.manager.reload)
         return any(newer > epoch for newer in self.epochs())
 
     def _restore_newest(self, template: Any, expected: Any, fallback: bool) -> tuple[int, Any] | None:
@@ -355,4 +371,4 @@ class Checkpoints:
             target = rejected / f"{e}-{time.strftime('%Y%m%d-%H%M%S')}"
             self.step_dir(e).rename(target)
             logging.warning("moved unusable checkpoint of epoch %d to %s", e, target)
-        self.manager.reload()
+        listed_again_while_removed(self.manager.reload)
