@@ -60,7 +60,7 @@ def write_block(markdown_file: Path | str, name: str, text: str) -> bool:
     """Put ``text`` between block ``name``'s marker lines of ``markdown_file``, atomically;
     True where the file changed (an unchanged block leaves the file untouched)."""
     path = Path(markdown_file)
-    old = read_text(path, "block")
+    old = read_text(path, "into")  # the file `report --into` names
     new = with_block(old, name, text, path)
     if new == old:
         return False

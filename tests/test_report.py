@@ -176,6 +176,12 @@ def test_write_block_without_markers_names_the_file_and_the_lines_to_add(tmp_pat
     assert readme.read_text() == "# Title\n<!-- report:other -->\n<!-- /report:other -->\n"
 
 
+def test_write_block_into_a_missing_file_names_the_into_flag_and_creates_nothing(tmp_path):
+    with pytest.raises(ConfigError, match=r"^into: .*missing\.md does not exist$"):
+        write_block(tmp_path / "missing.md", "smoke", "text")
+    assert list(tmp_path.iterdir()) == []
+
+
 def write_lines(path: Path, rows: list, tail: str = "") -> Path:
     path.write_text("".join(json.dumps(row) + "\n" for row in rows) + tail)
     return path
