@@ -198,3 +198,36 @@ def test_the_flip_figure_draws_each_tables_series():
     assert place.series["level 0"] == ([0.125, 0.625, 0.875], [1.0, 1.0, 0.0])
     assert attempt.series["phase 2"] == ([0.0], [1 / 3]) and size.series["phase 2"] == ([0.0], [2 / 3])
     assert attempt.title == "phase 2: flips by attempt (16.67 per 100 m gained)"  # one flip over 3 x 2 m
+
+
+def test_an_ant_started_rolling_over_flips_and_its_table_shows_where_and_how():
+    """On the real Ant, untrained: every chained start is upright but rolling about its forward
+    axis (8 rad/s) while rising (2 m/s), which lays it on its back within a few primitive steps
+    whatever the legs do, and the env resets it; from s0 it stays up (eps 0.05: no goal is
+    reached before the roll ends). The flip table counts the chained starts' flips and not s0's, its tilt climbs in the steps before a flip, and its count
+    agrees with the episodes the agent's own evaluation sees a reset cut short."""
+    from tiny import TINY1
+
+    from mjx_emp.algos.he.agent import HEAgent
+    from mjx_emp.replay import replay_init, replay_insert
+
+    agent = HEAgent(dataclasses.replace(TINY1, env="ant_field", solver_iterations=4, n=(4,), eps=(0.05,),
+                                       init_half_width=(2.0,)))
+    state = agent.init()
+    initial = np.asarray(agent.initial_obs)
+    nq = agent.env.mj_model.nq
+    rolling = initial.copy()
+    rolling[nq + 2], rolling[nq + 3] = 2.0, 8.0  # qvel: up the world's z, about the torso's own x axis
+    capacity = state.starts[0].data.shape[0]
+    planted = replay_insert(replay_init(rolling, capacity), np.tile(rolling, (capacity, 1)), np.ones(capacity, bool))
+    state = state.replace(starts=(planted,) + tuple(state.starts[1:]))
+    table, = flips.phase1_flips(agent, state, jax.random.key(0), episodes=16)
+    assert table["episodes"] == 32
+    assert table["by_start"]["initial"] == 0.0 and table["by_start"]["chained"] == 1.0, table["by_start"]
+    assert table["flips"] == 16
+    tilts = table["before_flip"]["flipped_tilt"]
+    assert tilts[0] is not None and tilts[0] > table["before_flip"]["upright_tilt"][0]
+    cut = agent.evaluate(state, 0, jax.random.key(1), rounds=2, starts="chained")["cut_short"]
+    assert cut == 1.0
+    text = "\n".join(flip_tables.flip_text([flip_tables.pooled([table])], None))
+    assert "level 0" in text and "16" in text
