@@ -147,6 +147,17 @@ def random_policy(box_fn: BoxFn) -> LevelPolicy:
     return policy
 
 
+def scripted_policy(branches: Sequence[LevelPolicy]) -> LevelPolicy:
+    """One of several scripted policies, picked at run time: ``params.actor`` is the index of
+    the branch to follow (a scripted policy has no network, so its actor slot is free). The
+    branches then share one compiled rollout instead of one program each."""
+
+    def policy(params: LevelParams, obs: jax.Array, goal: jax.Array, key: jax.Array) -> jax.Array:
+        return jax.lax.switch(params.actor, branches, params, obs, goal, key)
+
+    return policy
+
+
 def greedy_batch(policy: LevelPolicy, actor: Params, box: Any) -> Callable[[jax.Array, jax.Array], jax.Array]:
     """``policy`` without exploration noise over a batch of (obs, goal), in the action box ``box``."""
     params = LevelParams(actor=actor, box=box, noise=jnp.zeros(()))

@@ -290,6 +290,23 @@ def test_the_aimed_policy_asks_for_the_goal_itself_inside_the_top_box_and_its_ed
         dataclasses.replace(trainer, top="greedy")
 
 
+def test_the_scripted_diagnostics_share_one_program_and_give_what_each_gives_alone(tiny_phase2):
+    """Each scripted policy through the ``scripted`` top (one compiled rollout, the policy picked
+    by its index at run time) gives the figures it gives as the top on its own, on the same goals."""
+    from mjx_emp.metrics import PHASE2_DIAGNOSTICS
+
+    trainer, _, state = tiny_phase2
+    key = jax.random.key(4)
+    together = trainer.diagnostic_figures(state, key, episodes=16)
+    assert list(together) == list(PHASE2_DIAGNOSTICS)
+    for name in PHASE2_DIAGNOSTICS:
+        alone = dataclasses.replace(trainer, top=name).evaluate(state, key, episodes=16)
+        assert together[name].keys() == alone.keys()
+        for figure, value in alone.items():
+            assert together[name][figure] == pytest.approx(value, rel=1e-5, nan_ok=True), (name, figure)
+    assert together["aimed"] != together["random"]
+
+
 def test_an_aim_prior_starts_as_the_aimed_policy_and_training_moves_it_away(tiny_phase2):
     trainer, skills_state, plain_state = tiny_phase2
     primed = Phase2Trainer(trainer.phase1, dataclasses.replace(TINY_PHASE2, aim_prior=True))

@@ -56,6 +56,7 @@ from mjx_emp.nets import (
     greedy_batch,
     level_policy,
     random_policy,
+    scripted_policy,
 )
 from mjx_emp.phase2.config import Phase2Config, check_phase2_config, keeps_cut_attempts
 from mjx_emp.replay import (
@@ -109,6 +110,17 @@ class Phase2Stats:
     actor_loss: jax.Array
 
 
+def evaluation_figures(totals: CollectTotals) -> dict[str, float]:
+    """The figures :meth:`Phase2Loop.evaluate` reports of a greedy evaluation's totals."""
+    return {
+        "min_distance": float(totals.mean_distance()),
+        "success": float(totals.success()),
+        "cut_short": float(totals.cut_fraction()),
+        "uncut_min_distance": float(totals.uncut_mean_distance()),
+        "episodes": int(totals.episodes),
+    }
+
+
 class Phase2Loop:
     """What every phase-2 trainer (over HE's or a flat learner's skills) does the same way: the
     epoch (``iterations`` collect-and-update items, then ``eval_rounds`` greedy items, one
@@ -116,12 +128,11 @@ class Phase2Loop:
     the divergence check, and the goal-conditioned DDPG learner over its actions (networks,
     fresh state, update). A subclass provides ``cfg``, ``phase1`` (with ``env`` and
     ``initial_obs``), ``trace_name``, ``action_size``, ``greedy_actions(state)`` and
-    ``_collect(state, noise, store, key) -> (state, CollectTotals)``."""
+    ``_collect(state, noise, store, key, *args) -> (state, CollectTotals)`` (``args``: what
+    :meth:`diagnostic_figures` passes to pick a scripted policy, where it has any)."""
 
     cfg: Phase2Config
     trace_name: str = TRAIN_EPOCH_TRACE
-    diagnostic_tops: tuple[str, ...] = ()
-    """Scripted policies this trainer can put in its learned policy's place for evaluation."""
 
     @property
     def env(self):
@@ -229,9 +240,9 @@ class Phase2Loop:
         """One phase-2 epoch as one jitted call; returns per-item stats."""
         return _jit_train_epoch(self, state)
 
-    def _evaluate(self, state: Any, key: jax.Array, rounds: int) -> CollectTotals:
+    def _evaluate(self, state: Any, key: jax.Array, rounds: int, *collect_args: jax.Array) -> CollectTotals:
         def one(_, round_key):
-            _, totals = self._collect(state, jnp.zeros(()), jnp.bool_(False), round_key)
+            _, totals = self._collect(state, jnp.zeros(()), jnp.bool_(False), round_key, *collect_args)
             return None, totals
 
         _, totals = jax.lax.scan(one, None, jax.random.split(key, rounds))
@@ -246,15 +257,16 @@ class Phase2Loop:
         NaN if every one was cut: how far the policy gets where it stays upright), and the
         number of episodes.
         """
-        rounds = max(1, math.ceil(episodes / self.cfg.num_envs))
-        totals = _jit_evaluate(self, state, key, rounds)
-        return {
-            "min_distance": float(totals.mean_distance()),
-            "success": float(totals.success()),
-            "cut_short": float(totals.cut_fraction()),
-            "uncut_min_distance": float(totals.uncut_mean_distance()),
-            "episodes": int(totals.episodes),
-        }
+        return evaluation_figures(_jit_evaluate(self, state, key, self.evaluation_rounds(episodes)))
+
+    def evaluation_rounds(self, episodes: int) -> int:
+        """Whole rounds of num_envs episodes that hold at least ``episodes``."""
+        return max(1, math.ceil(episodes / self.cfg.num_envs))
+
+    def diagnostic_figures(self, state: Any, key: jax.Array, episodes: int = 400) -> dict[str, dict[str, float]]:
+        """:meth:`evaluate`'s figures of each scripted policy this trainer can put in its learned
+        policy's place, on the same goals (the same ``key``); none here."""
+        return {}
 
     def metrics(self, state: Any, stats: Phase2Stats, seconds: float) -> dict[str, Any]:
         """One JSON-ready line of an epoch: greedy min distance and success from the evaluation
@@ -295,7 +307,10 @@ class Phase2Loop:
         return None
 
 
-TOP_POLICIES = ("learned",) + PHASE2_DIAGNOSTICS
+SCRIPTED = "scripted"
+"""``Phase2Trainer.top`` for any of the scripted diagnostics, the one a call names by its index in
+:data:`~mjx_emp.metrics.PHASE2_DIAGNOSTICS`: all of them through one compiled program."""
+TOP_POLICIES = ("learned",) + PHASE2_DIAGNOSTICS + (SCRIPTED,)
 """What can sit on top of the frozen skills in phase 2 (see ``Phase2Trainer.top``)."""
 
 
@@ -313,8 +328,8 @@ class Phase2Trainer(Phase2Loop):
     """The added level's policy: ``learned`` (the phase-2 actor), or for the chaining
     diagnostic ``aimed`` (each subgoal straight at the goal, clipped into the top box at s),
     ``aimed_half`` (the same, clipped into the box's central half) or ``random`` (uniform in
-    that box); the diagnostics ignore the actor."""
-    diagnostic_tops = PHASE2_DIAGNOSTICS  # a class attribute, not a field
+    that box), or ``scripted``: the diagnostic each rollout names (:meth:`diagnostic_figures`).
+    The diagnostics ignore the actor."""
     hierarchy: Hierarchy = dataclasses.field(init=False, compare=False, repr=False)
     identity: Phase2Config = dataclasses.field(init=False, repr=False)
     """What it compares and hashes by, beside ``phase1`` and ``top``: ``cfg`` without its epoch count."""
@@ -330,11 +345,13 @@ class Phase2Trainer(Phase2Loop):
         object.__setattr__(self, "identity", compile_identity(self.cfg))
         k, phase1 = self.level, self.phase1.cfg
         box = self.phase1.nets.learned_box(k - 1)
+        scripted = {"aimed": lambda: aimed_policy(self.env, box),
+                    "aimed_half": lambda: aimed_policy(self.env, central_box(box, 0.5)),
+                    "random": lambda: random_policy(box)}
         policy = {"learned": lambda: level_policy(self.env, self.actor_net, central_box(box, self.cfg.subgoal_reach),
                                                   aim_prior=self.cfg.aim_prior),
-                  "aimed": lambda: aimed_policy(self.env, box),
-                  "aimed_half": lambda: aimed_policy(self.env, central_box(box, 0.5)),
-                  "random": lambda: random_policy(box)}[self.top]()
+                  SCRIPTED: lambda: scripted_policy([scripted[name]() for name in PHASE2_DIAGNOSTICS]),
+                  **scripted}[self.top]()
         hierarchy = Hierarchy(
             self.env, self.phase1.hierarchy.policies + (policy,),
             n=tuple(phase1.n) + (self.cfg.n,), eps=tuple(phase1.eps) + (self.cfg.eps,),
@@ -374,14 +391,17 @@ class Phase2Trainer(Phase2Loop):
         goal = jax.random.uniform(goal_key, low.shape, minval=low, maxval=high)
         return self.env.restore(env_key, jnp.asarray(self.phase1.initial_obs)), goal, ()
 
-    def rollout_params(self, state: Phase2State, noise: jax.Array) -> tuple[LevelParams, ...]:
-        """Per-level policy params: the frozen skills, then the added level with ``noise``."""
+    def rollout_params(self, state: Phase2State, noise: jax.Array,
+                       diagnostic: jax.Array | None = None) -> tuple[LevelParams, ...]:
+        """Per-level policy params: the frozen skills, then the added level with ``noise`` (its
+        actor slot holds ``diagnostic``, the scripted policy's index, under the ``scripted`` top)."""
         k, zero = self.level, jnp.zeros(())
         skills = tuple(
             LevelParams(actor=state.skill_actors[level], box=None if level == 0 else state.goal_space_actors[level - 1], noise=zero)
             for level in range(k)
         )
-        return skills + (LevelParams(actor=state.learner.actor, box=state.goal_space_actors[k - 1], noise=noise),)
+        actor = diagnostic if self.top == SCRIPTED else state.learner.actor
+        return skills + (LevelParams(actor=actor, box=state.goal_space_actors[k - 1], noise=noise),)
 
     def greedy_episodes(self, state: Phase2State) -> RolloutPlan:
         """Greedy phase-2 episodes (goals from the region), showing the task's goal as level
@@ -398,15 +418,17 @@ class Phase2Trainer(Phase2Loop):
         """Rollout calls that let every environment finish one episode (every attempt used)."""
         return math.ceil(self.longest_episode / self.phase1.cfg.chunk_steps) + 1
 
-    def _collect(self, state: Phase2State, noise: jax.Array, store: jax.Array, key: jax.Array):
+    def _collect(self, state: Phase2State, noise: jax.Array, store: jax.Array, key: jax.Array,
+                 diagnostic: jax.Array | None = None):
         """Run num_envs episodes (each environment to the end of its first at least).
 
-        Where ``store``, every attempt goes to the replay. Returns the new state and the
+        Where ``store``, every attempt goes to the replay; ``diagnostic`` picks the scripted
+        policy under the ``scripted`` top. Returns the new state and the
         call's :class:`CollectTotals`; ``distance`` sums each first episode's minimum
         distance to goal.
         """
         hierarchy, k, chunk_steps = self.hierarchy, self.level, self.phase1.cfg.chunk_steps
-        params = self.rollout_params(state, noise)
+        params = self.rollout_params(state, noise, diagnostic)
         first = init_rollout(hierarchy, params, self.start, None, key, self.cfg.num_envs, k)
 
         def absorb(kept, transitions, episodes, stats):
@@ -427,6 +449,14 @@ class Phase2Trainer(Phase2Loop):
             (state.replay, running, CollectTotals.zero()),
         )
         return state.replace(replay=replay, env_steps=state.env_steps.add(totals.env_steps)), totals
+
+    def diagnostic_figures(self, state: Phase2State, key: jax.Array, episodes: int = 400) -> dict[str, dict[str, float]]:
+        """:meth:`evaluate`'s figures of each scripted policy of
+        :data:`~mjx_emp.metrics.PHASE2_DIAGNOSTICS` in the learned policy's place, on the same
+        goals (the same ``key``), all through the one compiled program of the ``scripted`` top."""
+        scripted, rounds = dataclasses.replace(self, top=SCRIPTED), self.evaluation_rounds(episodes)
+        return {name: evaluation_figures(_jit_evaluate(scripted, state, key, rounds, jnp.int32(index)))
+                for index, name in enumerate(PHASE2_DIAGNOSTICS)}
 
     # ---- learning -------------------------------------------------------------------
     def greedy_actions(self, state: Phase2State):

@@ -99,15 +99,14 @@ def skill_figures(agent, state, key, coverage_draws: int = 1) -> dict:
 def phase2_figures(trainer, epoch: int, state, key, episodes: int) -> dict:
     """The paper's phase-2 figure of a phase-2 state: its task and the greedy policy's mean
     minimum distance to goal and success on at least ``episodes`` goals from the region; where
-    the trainer offers them (``diagnostic_tops``), the same figures of the scripted policies on
+    the trainer offers them (``diagnostic_figures``), the same figures of the scripted policies on
     the same goals (:data:`mjx_emp.metrics.PHASE2_DIAGNOSTICS`); and the flip table of
     :data:`FLIP_TABLE_PHASE2_ENVS` greedy episodes (:func:`mjx_emp.run.flips.phase2_flips`; over
     goal-space skills only)."""
     cfg = trainer.cfg
     figures = {"epoch": epoch, "n": cfg.n, "eps": cfg.eps, "region": list(cfg.region),
                "region_offset": list(cfg.region_offset), **trainer.evaluate(state, key, episodes)}
-    for top in trainer.diagnostic_tops:  # the same goals (same key) under the scripted policies
-        figures[top] = dataclasses.replace(trainer, top=top).evaluate(state, key, episodes)
+    figures.update(trainer.diagnostic_figures(state, key, episodes))  # the same goals under the scripted policies
     if algorithm_of(trainer.phase1.cfg).skills == GOAL_SPACES:  # skills addressed by subgoals: followed step by step
         figures["flip_table"] = phase2_flips(trainer, state, jax.random.fold_in(key, FLIP_TABLE_KEY),
                                              FLIP_TABLE_PHASE2_ENVS)
