@@ -206,6 +206,39 @@ def test_heading_frame_inputs_do_not_change_when_the_world_turns_and_world_input
                                [1.0, 2.0], atol=1e-6)
 
 
+def test_a_turned_start_tilts_the_torso_by_its_angle_lifts_it_and_keeps_the_rest():
+    """``Torso.turned``: a free torso turned by a about any horizontal axis tilts by 1 - cos(a) (its
+    quaternion stays a unit one, its heading's axis decides which way it leans); a planar torso
+    pitches by +-a; both are lifted by TURN_LIFT sin(a); position, joints and velocities stay."""
+    from mjx_emp.envs.parts import TURN_LIFT
+
+    env = make_env("ant_field")
+    obs = env.observe(env.reset_to(jax.random.key(0), jnp.array([1.0, 2.0])))
+    q, z = env.torso.quat, env.torso.height
+    angles = jnp.array([0.0, 0.3, 1.0, np.pi / 2])
+    for heading in (0.0, 1.3, -2.5):
+        turned = jax.vmap(lambda a, h=heading: env.torso.turned(obs, a, jnp.float32(h)))(angles)
+        np.testing.assert_allclose(env.torso.tilt(turned), 1.0 - np.cos(angles), atol=1e-6)
+        np.testing.assert_allclose(jnp.linalg.norm(turned[:, q:q + 4], axis=-1), 1.0, atol=1e-6)
+        np.testing.assert_allclose(turned[:, z] - obs[z], TURN_LIFT * np.sin(angles), atol=1e-6)
+        rest = np.delete(np.arange(obs.shape[0]), [z, q, q + 1, q + 2, q + 3])
+        np.testing.assert_array_equal(turned[:, rest], jnp.broadcast_to(obs[rest], (4, rest.size)))
+        # The up axis leans at right angles to the turn's axis: toward heading - 90 degrees (right-hand rule).
+        w, x, y, zq = (turned[2, q + i] for i in range(4))
+        lean = np.array([2 * (x * zq + w * y), 2 * (y * zq - w * x)])
+        np.testing.assert_allclose(lean / np.linalg.norm(lean), [np.sin(heading), -np.cos(heading)], atol=1e-5)
+    cheetah = make_env("half_cheetah_field")
+    start = cheetah.observe(cheetah.reset(jax.random.key(0)))
+    forward = cheetah.torso.turned(start, jnp.float32(0.4), jnp.float32(0.2))
+    backward = cheetah.torso.turned(start, jnp.float32(0.4), jnp.float32(np.pi))
+    assert float(forward[cheetah.torso.pitch] - start[cheetah.torso.pitch]) == pytest.approx(0.4)
+    assert float(backward[cheetah.torso.pitch] - start[cheetah.torso.pitch]) == pytest.approx(-0.4)
+    assert float(forward[cheetah.torso.height] - start[cheetah.torso.height]) == pytest.approx(TURN_LIFT * np.sin(0.4))
+    point = make_env("point_mass")
+    still = point.observe(point.reset(jax.random.key(0)))
+    np.testing.assert_array_equal(point.torso.turned(still, jnp.float32(1.0), jnp.float32(0.0)), still)
+
+
 def test_heading_frame_needs_a_free_torso():
     with pytest.raises(ValueError, match="heading_frame: 'half_cheetah_field' has no free torso"):
         make_env("half_cheetah_field", heading_frame=True)

@@ -671,3 +671,34 @@ def test_start_subsets_split_the_buffer_at_the_initial_state():
     np.testing.assert_array_equal(chained.data[:2], [[3.0, 4.0], [5.0, 6.0]])
     empty_chain = start_subset(replay_insert(replay_init(initial, 8), initial[None], jnp.ones(1, bool)), initial, 2)
     assert int(empty_chain.size) == 1 and np.all(np.asarray(empty_chain.data[0]) == [1.0, 2.0])
+
+
+def test_tilted_starts_turn_a_share_of_level_zeros_training_starts_and_change_no_other_draw():
+    """With ``tilted_starts`` 0.5, about half of level 0's training starts (GC mode) are turned
+    by up to ``tilted_start_angle`` (each goal drawn from the box at the turned state); the other
+    half with their goals, and every start of evaluation and of the goal spaces' collection, are
+    the draws the paper's starts make with the same keys."""
+    base = dataclasses.replace(TINY1, env="ant_field", solver_iterations=4)
+    plain = HEAgent(base)
+    tilted = HEAgent(dataclasses.replace(base, tilted_starts=0.5, tilted_start_angle=1.0))
+    state = plain.init()
+    keys = jax.random.split(jax.random.key(2), 512)
+
+    def starts(agent, mode):
+        _, start_params = agent.rollout_inputs(state, jnp.int32(0), jnp.int32(mode))
+        _, goals, info = jax.vmap(agent.start, (None, 0))(start_params, keys)
+        return np.asarray(info.obs), np.asarray(goals)
+
+    torso = tilted.env.torso
+    obs_plain, goals_plain = starts(plain, MODE_GC)
+    obs_tilted, goals_tilted = starts(tilted, MODE_GC)
+    turned = np.any(obs_tilted != obs_plain, axis=-1)
+    assert 0.4 < turned.mean() < 0.6, turned.mean()
+    lift = obs_tilted[turned, torso.height] - obs_plain[turned, torso.height]
+    assert np.all(lift > 0.0) and float(np.max(torso.tilt(obs_tilted))) <= 1.0 - math.cos(1.0) + 1e-4
+    assert float(np.max(torso.tilt(obs_tilted))) > 0.3  # angles spread up to the largest
+    np.testing.assert_array_equal(obs_tilted[~turned], obs_plain[~turned])
+    np.testing.assert_array_equal(goals_tilted[~turned], goals_plain[~turned])
+    for mode in (MODE_EVAL, MODE_GS):
+        for got, want in zip(starts(tilted, mode), starts(plain, mode)):
+            np.testing.assert_array_equal(got, want)

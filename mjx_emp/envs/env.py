@@ -308,7 +308,7 @@ def make_env(name: str, heading_frame: bool = False, solver_iterations: int = 0,
         home_qpos=_home_qpos(m),
         action_repeat=spec.action_repeat,
         goal_qpos=spec.goal_qpos,
-        torso=Torso(nq=m.nq, quat=spec.torso_quat, pitch=spec.torso_pitch),
+        torso=Torso(nq=m.nq, quat=spec.torso_quat, pitch=spec.torso_pitch, height=spec.torso_height),
         cage=_make_cage(m, d, spec) if spec.caged else None,
         heading_frame=heading_frame,
     )

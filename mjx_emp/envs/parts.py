@@ -15,6 +15,11 @@ import numpy as np
 
 from mjx_emp.envs.mjx_quiet import mjx
 
+TURN_LIFT = 0.8
+"""Metres a turned start (:meth:`Torso.turned`) lifts the torso per unit sin(angle): about the
+farthest a foot of the Ant or the Half Cheetah reaches from the torso's centre, so that no
+foot starts below the floor (the robot drops a little instead)."""
+
 
 @dataclasses.dataclass(frozen=True)
 class Torso:
@@ -29,6 +34,8 @@ class Torso:
     nq: int
     quat: int | None = None
     pitch: int | None = None
+    height: int | None = None
+    """Where the torso's height is in qpos (lifted by :meth:`turned`)."""
 
     @property
     def free(self) -> bool:
@@ -77,6 +84,26 @@ class Torso:
         # velocity in qvel), so its angular velocity is qvel[3:6].
         return jnp.linalg.norm(velocity[..., 3:6], axis=-1)
 
+    def turned(self, obs: jax.Array, angle: jax.Array, heading: jax.Array) -> jax.Array:
+        """``obs`` with the torso turned by ``angle`` (radians) about the horizontal axis at
+        ``heading`` (radians from world x), its velocities kept, and lifted by
+        :data:`TURN_LIFT` x sin(angle) so that no foot starts below the floor. A free torso turns
+        about that axis (its tilt becomes 1 - cos(angle) from upright); a planar torso pitches
+        by ``angle`` in the sign of cos(heading); a robot without a torso is left as it is."""
+        obs = jnp.asarray(obs)
+        if self.pitch is not None:
+            obs = obs.at[..., self.pitch].add(jnp.where(jnp.cos(heading) >= 0.0, angle, -angle))
+        elif self.quat is not None:
+            half = 0.5 * angle
+            r = (jnp.cos(half), jnp.sin(half) * jnp.cos(heading), jnp.sin(half) * jnp.sin(heading), jnp.zeros_like(half))
+            q = tuple(obs[..., self.quat + i] for i in range(4))
+            obs = obs.at[..., self.quat : self.quat + 4].set(jnp.stack(hamilton(r, q), axis=-1))
+        else:
+            return obs
+        if self.height is not None:
+            obs = obs.at[..., self.height].add(TURN_LIFT * jnp.abs(jnp.sin(angle)))
+        return obs
+
     def yaw(self, obs: jax.Array) -> jax.Array:
         """Heading of a free torso about the world z axis, read from its quaternion."""
         w, x, y, z = (obs[..., self.quat + i] for i in range(4))
@@ -94,11 +121,18 @@ class Torso:
         c, s = jnp.cos(half), jnp.sin(half)
         q = self.quat
         w, x, y, z = (obs[..., q + i] for i in range(4))
-        # (c, 0, 0, s) * (w, x, y, z), Hamilton product
-        quat = jnp.stack([c * w - s * z, c * x - s * y, c * y + s * x, c * z + s * w], axis=-1)
+        quat = jnp.stack(hamilton((c, 0.0, 0.0, s), (w, x, y, z)), axis=-1)
         quat = jnp.where(quat[..., :1] < 0.0, -quat, quat)  # q and -q are one rotation: keep w >= 0
         turned = rotate_xy(obs[..., self.nq : self.nq + 2], 2.0 * half)
         return obs.at[..., q : q + 4].set(quat).at[..., self.nq : self.nq + 2].set(turned)
+
+
+def hamilton(a: tuple[jax.Array, ...], b: tuple[jax.Array, ...]) -> tuple[jax.Array, ...]:
+    """The Hamilton product a b of two quaternions given as (w, x, y, z): rotation b, then a."""
+    aw, ax, ay, az = a
+    bw, bx, by, bz = b
+    return (aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)

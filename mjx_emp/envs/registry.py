@@ -24,6 +24,9 @@ class DomainSpec:
     torso_pitch: int | None = None
     """Where a planar robot's torso pitch hinge is in qpos (the Half Cheetah's rooty): its up
     axis is tilted by that angle. Such a robot is never reset when upside down."""
+    torso_height: int | None = None
+    """Where the torso's height above the floor is in qpos (a free joint's z, the Half Cheetah's
+    rootz): what a tilted start lifts so that no foot begins below the floor."""
     standardize: bool = False
     """Standardise network features by a random-action rollout's statistics (see
     :func:`random_action_feature_stats`)."""
@@ -38,18 +41,21 @@ class DomainSpec:
 # flipped Half Cheetah is never reset (as in Gym and Brax); its tilt is read from its torso's
 # pitch hinge, for levels that pay for tilting (``tilt_cost``).
 ANT_TORSO_QUAT = 3
+ANT_TORSO_HEIGHT = 2
 HALF_CHEETAH_PITCH = 2
+HALF_CHEETAH_HEIGHT = 1
 DOMAINS: dict[str, DomainSpec] = {
     "point_mass": DomainSpec("point_mass.xml", action_repeat=5, goal_qpos=(0, 1)),
     "ant_field": DomainSpec("ant_field.xml", action_repeat=10, goal_qpos=(0, 1), torso_quat=ANT_TORSO_QUAT,
-                            standardize=True),
+                            torso_height=ANT_TORSO_HEIGHT, standardize=True),
     "ant_cage": DomainSpec("ant_cage.xml", action_repeat=10, goal_qpos=(0, 1), caged=True,
-                           torso_quat=ANT_TORSO_QUAT, standardize=True),
+                           torso_quat=ANT_TORSO_QUAT, torso_height=ANT_TORSO_HEIGHT, standardize=True),
     "half_cheetah_field": DomainSpec("half_cheetah_field.xml", action_repeat=10, goal_qpos=(0,),
-                                     torso_pitch=HALF_CHEETAH_PITCH, standardize=True),
+                                     torso_pitch=HALF_CHEETAH_PITCH, torso_height=HALF_CHEETAH_HEIGHT,
+                                     standardize=True),
     "half_cheetah_cage": DomainSpec(
         "half_cheetah_cage.xml", action_repeat=10, goal_qpos=(0,), caged=True, torso_pitch=HALF_CHEETAH_PITCH,
-        standardize=True,
+        torso_height=HALF_CHEETAH_HEIGHT, standardize=True,
     ),
 }
 DOMAIN_NAMES: tuple[str, ...] = tuple(DOMAINS)

@@ -51,6 +51,9 @@ from mjx_emp.rollout.hierarchy import init_rollout
 from mjx_emp.rollout.structures import EpisodeEnd, RolloutPlan, Transition
 from mjx_emp.shards import shard_sum
 
+TILT_STREAM = 7919
+"""What a start's key is folded with for its tilted-start draws (``HEConfig.tilted_starts``)."""
+
 
 class HECollection:
     """The collection methods of :class:`~mjx_emp.algos.he.agent.HEAgent` (``self`` is the agent)."""
@@ -70,6 +73,7 @@ class HECollection:
         start_params = StartParams(
             root=root, goal_noise=goal_noise, starts=state.starts,
             gs_actors=tuple(g.actor for g in state.goal_spaces),
+            tilted=jnp.where((root == 0) & (mode == MODE_GC), cfg.tilted_starts, 0.0),
         )
         return params, start_params
 
@@ -111,6 +115,8 @@ class HECollection:
         pick_key, box_key, noise_key, env_key = jax.random.split(key, 4)
         candidates = [replay_sample(buf, pick_key, 1)[0] for buf in start_params.starts]
         s0 = jnp.stack(candidates + [jnp.asarray(self.initial_obs)])[start_params.root]
+        if self.cfg.tilted_starts > 0.0:  # its own keys, so that without it every draw stays as it was
+            s0 = self.tilted_start(s0, start_params.tilted, jax.random.fold_in(key, TILT_STREAM))
         state = env.restore(env_key, s0)
         actions = [self.nets.goal_space_action(level, p, s0) for level, p in enumerate(start_params.gs_actors)]
         action = jnp.stack(actions + [jnp.zeros(2 * d)])[start_params.root]
@@ -120,6 +126,14 @@ class HECollection:
         noise = gce.goal_noise(noise_key, (d,))
         z = gce.sample_goal(noise, action)
         return state, env.goal_of_obs(s0) + z, EpisodeInfo(obs=s0, noise=noise, action=action)
+
+    def tilted_start(self, s0: jax.Array, share: jax.Array, key: jax.Array) -> jax.Array:
+        """``s0``, or with probability ``share`` ``s0`` turned by an angle uniform up to
+        ``tilted_start_angle`` about a horizontal axis of uniform heading (``Torso.turned``)."""
+        use_key, angle_key, heading_key = jax.random.split(key, 3)
+        angle = jax.random.uniform(angle_key, (), maxval=self.cfg.tilted_start_angle)
+        heading = jax.random.uniform(heading_key, (), maxval=2.0 * jnp.pi)
+        return jnp.where(jax.random.uniform(use_key) < share, self.env.torso.turned(s0, angle, heading), s0)
 
     def _max_chunks(self) -> jax.Array:
         """Rollout calls that let every environment finish one episode at each root level."""

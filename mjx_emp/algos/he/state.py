@@ -52,6 +52,8 @@ class StartParams:
     goal_noise: jax.Array
     starts: tuple[ReplayBuffer, ...]
     gs_actors: tuple[Params, ...]
+    tilted: jax.Array | float = 0.0
+    """The share of episodes begun from a tilted start (``HEConfig.tilted_starts``, level 0's training only)."""
 
 
 @struct.dataclass
