@@ -319,16 +319,14 @@ def check_flip_fields(cfg: HEConfig) -> None:
         raise ConfigError(f"flip_cost: must be >= 0; got {cfg.flip_cost}")
     if not cfg.tilt_cost >= 0.0:
         raise ConfigError(f"tilt_cost: must be >= 0; got {cfg.tilt_cost}")
-    if cfg.tilt_cost > 0.0 and not tiltable(DOMAINS[cfg.env]):
-        allowed = sorted(name for name, spec in DOMAINS.items() if tiltable(spec))
-        raise ConfigError(f"tilt_cost: {cfg.env!r} has no torso to tilt; allowed only with env in {allowed}")
     if not 0.0 <= cfg.tilted_starts <= 1.0:
         raise ConfigError(f"tilted_starts: a share in [0, 1]; got {cfg.tilted_starts}")
     if not 0.0 < cfg.tilted_start_angle <= math.pi / 2:
         raise ConfigError(f"tilted_start_angle: radians in (0, pi/2]; got {cfg.tilted_start_angle}")
-    if cfg.tilted_starts > 0.0 and not tiltable(DOMAINS[cfg.env]):
-        allowed = sorted(name for name, spec in DOMAINS.items() if tiltable(spec))
-        raise ConfigError(f"tilted_starts: {cfg.env!r} has no torso to tilt; allowed only with env in {allowed}")
+    for field in ("tilt_cost", "tilted_starts"):  # what reads the torso's tilt
+        if getattr(cfg, field) > 0.0 and not tiltable(DOMAINS[cfg.env]):
+            allowed = sorted(name for name, spec in DOMAINS.items() if tiltable(spec))
+            raise ConfigError(f"{field}: {cfg.env!r} has no torso to tilt; allowed only with env in {allowed}")
     if cfg.reset_outcome not in RESET_OUTCOMES:
         raise ConfigError(f"reset_outcome: {cfg.reset_outcome!r} is unknown; allowed values: {list(RESET_OUTCOMES)}")
     if cfg.reset_outcome != "last" and not cfg.learn_from_resets:
