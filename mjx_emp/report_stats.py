@@ -67,6 +67,8 @@ METRICS: dict[str, Metric] = {m.name: m for m in (
             "phase-2 random-goal min distance", "m", True),
     _metric("phase2_random_success", ("figures", "phase2", "random", "success"),
             "phase-2 random-goal success", "fraction"),
+    _metric("phase2_random_cut_short", ("figures", "phase2", "random", "cut_short"),
+            "phase-2 random-goal episodes ended by a flip", "fraction", True),
     _metric("top_volume", ("figures", "top_volume"), "top-level goal-space volume", "m² or m"),
     _metric("top_success", ("figures", "top_success"), "top-level success", "fraction"),
     _metric("volume_x_success", ("figures", "volume_x_success"), "top volume × success", "m² or m"),

@@ -59,6 +59,11 @@ def test_metric_values_skip_rows_without_the_metric():
         metric_values(rows, "speed")
 
 
+def test_the_sweeps_guide_names_every_metric_a_report_knows():
+    guide = (Path(__file__).parents[1] / "docs" / "sweeps.md").read_text()
+    assert [name for name in METRICS if f"`{name}`" not in guide] == []
+
+
 def test_a_metric_path_steps_into_lists_by_index():
     rows = [{"figures": {"flip_table": [{"flip_share": 0.5}, {"flip_share": 0.25}],
                          "phase2": {"flip_table": {"flip_share": 0.125}}}}, {"figures": {"flip_table": []}}]
