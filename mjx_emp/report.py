@@ -374,6 +374,9 @@ def report_spec(spec_path: str, results: str = "", metrics: Sequence[str] = (), 
     spec = load_report_spec(spec_path)
     results_path = Path(results or Path(RESULTS_DIR) / f"{spec.name}.jsonl")
     rows = chosen_rows(spec_rows(spec, results_path), spec.report.get("rows", ()))
+    if not rows and not results_path.exists():
+        raise ConfigError(f"results: {results_path} does not exist (looked for from {Path.cwd()}); run "
+                          f"`{producing_command(spec)}` first, or name the rows file with --results")
     if not rows:
         raise ConfigError(f"results: {results_path} holds no row of spec {spec.name!r}; run "
                           f"`{producing_command(spec)}` first")

@@ -224,3 +224,16 @@ def test_a_rows_flip_table_is_its_runs_tables_pooled_and_a_row_without_one_is_na
     assert "| 0 | 20 | 10.0% | 0.0% | 20.0% |" in text
     with pytest.raises(ConfigError, match="flip_table: row 'metra' has no flip table .*rows with one: he-k1"):
         row_flip_table(rows + [{"row": "metra", "seed": 0, "figures": {"flip_table": None}}], "metra")
+
+
+def test_a_report_whose_rows_file_is_missing_says_where_it_looked_and_how_to_name_one(tmp_path, monkeypatch):
+    from mjx_emp.report import report_spec
+
+    spec = Path(__file__).parents[1] / "experiments" / "smoke-point-mass.toml"
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(ConfigError, match=r"results/smoke-point-mass.jsonl does not exist \(looked for from .*--results"):
+        report_spec(str(spec))
+    (tmp_path / "results").mkdir()
+    (tmp_path / "results" / "smoke-point-mass.jsonl").write_text(json.dumps(make_row("he", 0, spec="other")) + "\n")
+    with pytest.raises(ConfigError, match="holds no row of spec 'smoke-point-mass'"):
+        report_spec(str(spec))
