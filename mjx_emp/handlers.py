@@ -67,9 +67,9 @@ def render(exp: commands.RenderExperiment) -> None:
     if exp.out:
         store.output_target(out, "out")
     if exp.phase2:
-        phase2_dir = Path(exp.run_dir) / store.PHASE2_SUBDIR
-        if not (phase2_dir / store.CONFIG_FILE).exists():
-            raise ConfigError(f"phase2: {str(phase2_dir)!r} holds no phase-2 run; train one with "
+        phase2_dir = store.own_phase2(exp.run_dir)
+        if phase2_dir is None:
+            raise ConfigError(f"phase2: {str(Path(exp.run_dir) / store.PHASE2_SUBDIR)!r} holds no phase-2 run; train one with "
                               f"`mjx-emp phase2 {exp.run_dir}`")
         trainer, epoch, state = jobs.load_phase2(phase2_dir)
     else:

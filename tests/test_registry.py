@@ -96,3 +96,13 @@ def test_a_hand_set_box_names_a_config_field_of_its_algorithm():
     for name, field in boxes.items():
         if field is not None:
             assert field in {f.name for f in dataclasses.fields(ALGORITHMS[name].config_type)}, name
+
+
+def test_a_fresh_run_directory_is_named_by_the_registry_entrys_prefix():
+    from mjx_emp.run.store import default_run_dir
+
+    presets = all_presets()
+    he, gcrl, metra = (presets[name][1] for name in ("ant-field-k1-cpu", "gcrl-ant-field-k1-cpu", "metra-ant-field-cpu"))
+    assert default_run_dir(he).startswith("runs/ant_field-k1-")
+    assert default_run_dir(gcrl).startswith("runs/gcrl-ant_field-k1-")
+    assert default_run_dir(metra).startswith(f"runs/metra-ant_field-k{metra.k}-")

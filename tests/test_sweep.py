@@ -299,3 +299,14 @@ def test_a_failed_job_is_one_error_naming_its_row_and_log():
     failed.set_exception(FloatingPointError("a diverged critic"))
     with pytest.raises(JobFailed, match="row 'he-k1' failed .*a diverged critic.*runs/x/logs/he-k1.log"):
         job_rows(job, failed)
+
+
+def test_a_phase_2_differing_only_in_when_it_stops_is_the_rows_and_any_other_change_is_not():
+    from mjx_emp.phase2.presets import PHASE2_PRESETS
+    from mjx_emp.run.sweep import same_phase2
+
+    wanted = PHASE2_PRESETS["reach-ant-field-cpu"][2]
+    held = dataclasses.replace(wanted, phase1_epoch=140, epochs=wanted.epochs + 10, max_env_steps=10_000)
+    assert same_phase2(held, wanted)
+    assert not same_phase2(dataclasses.replace(held, n=wanted.n + 1), wanted)
+    assert not same_phase2(dataclasses.replace(held, flip_cost=10.0), wanted)

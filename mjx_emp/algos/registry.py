@@ -96,6 +96,9 @@ class Algorithm:
     """Fields of its train state that training refills as it goes (replays, the environments
     mid-episode) and that phase 2, eval, plot and render never read: a skills export
     (`mjx-emp export`) leaves them out, which makes it a fraction of a checkpoint's size."""
+    run_dir_prefix: str | None = None
+    """How its fresh run directories' names begin, before <env>-k<k>-<date>-<time> (None: its
+    name; empty: nothing, for the library's own method)."""
 
     def __post_init__(self):
         if self.skills not in SKILL_KINDS:
@@ -131,7 +134,7 @@ SKILL_REBUILT_FIELDS = ("replay", "rollout")
 
 ALGORITHMS: dict[str, Algorithm] = {
     "he": Algorithm("he", HEConfig, check_train_config, HE_PRESETS, _he_agent, HE_SHARD_SPLIT, GOAL_SPACES,
-                    rebuilt_fields=HE_REBUILT_FIELDS),
+                    rebuilt_fields=HE_REBUILT_FIELDS, run_dir_prefix=""),
     "gcrl": Algorithm("gcrl", GcrlConfig, check_gcrl_config, GCRL_PRESETS, _he_agent, HE_SHARD_SPLIT, GOAL_SPACES,
                       hand_set_box="goal_half_width", rebuilt_fields=HE_REBUILT_FIELDS),
     "diayn": _skill_algorithm("diayn", DiaynConfig),
@@ -175,11 +178,6 @@ def make_agent(cfg: Any, shard_axes: tuple[str, ...] = ()) -> Agent:
     algorithm = algorithm_of(cfg)
     algorithm.check(cfg)
     return algorithm.make_agent(shard_config(cfg, algorithm.shard_split), tuple(shard_axes))
-
-
-def one_shard_config(cfg: Any) -> Any:
-    """The config of one shard of a run of ``cfg`` (``cfg`` itself when it is not split)."""
-    return shard_config(cfg, algorithm_of(cfg).shard_split)
 
 
 def all_presets() -> dict[str, tuple[str, Any]]:

@@ -91,8 +91,7 @@ def skill_figures(agent, state, key, coverage_draws: int = 1) -> dict:
     posterior's mean standard deviation."""
     coverage = coverage_figures(lambda k, n: agent.skill_paths(state, k, n), jax.random.fold_in(key, 0),
                                 coverage_draws)
-    return {"epoch": int(state.epoch), "env_steps": float(state.env_steps.value()), "algorithm": agent.method,
-            **coverage,
+    return {"epoch": int(state.epoch), "env_steps": float(state.env_steps.value()), **coverage,
             "posterior_std": agent.posterior_std(state, jax.random.fold_in(key, 1))}
 
 
@@ -144,7 +143,6 @@ def run_figures(run_dir: Path, key, episodes: int, coverage_draws: int = 1) -> d
         figures = skill_figures(agent, state, key, coverage_draws)
         figures = {**figures, "levels": [], "top_volume": None, "top_success": None, "flips": None,
                    "volume_x_success": None, "flip_table": None}
-    figures.pop("algorithm", None)
     return {**figures, "phase2": phase2_of_run(Path(run_dir), key, episodes)}
 
 
@@ -207,16 +205,14 @@ def evaluation_row(run_dir: Path, seed: int = 0, episodes: int = 400, command: s
 
 def _phase2_preset(run_dir: Path) -> str | None:
     """The phase-2 preset RUN_DIR/phase2 was started from, where its provenance says."""
-    phase2_dir = run_dir / store.PHASE2_SUBDIR
-    return store.read_run_record(phase2_dir).get("preset") if (phase2_dir / store.CONFIG_FILE).exists() else None
+    phase2_dir = store.own_phase2(run_dir)
+    return None if phase2_dir is None else store.read_run_record(phase2_dir).get("preset")
 
 
 def _phase2_config(run_dir: Path) -> dict | None:
     """RUN_DIR/phase2's config as its config.json holds it, None without a phase 2."""
-    phase2_dir = run_dir / store.PHASE2_SUBDIR
-    if not (phase2_dir / store.CONFIG_FILE).exists():
-        return None
-    return dataclasses.asdict(store.read_run_config(phase2_dir, "run_dir", Phase2Config))
+    phase2_dir = store.own_phase2(run_dir)
+    return None if phase2_dir is None else dataclasses.asdict(store.read_run_config(phase2_dir, "run_dir", Phase2Config))
 
 
 def row_figures(row: dict) -> dict:

@@ -53,6 +53,7 @@ from mjx_emp.run.store import (
     fresh_run_dir,
     keep_metrics_through,
     newest_checkpoint_on_disk,
+    own_phase2,
     read_run_config,
     read_run_record,
     run_lock,
@@ -177,22 +178,17 @@ def _with_stops(cfg, stops: dict | None):
     return dataclasses.replace(cfg, **stops) if stops else cfg
 
 
-def load_run(run_dir: Path, fallback: bool = False, stops: dict | None = None, field: str = "run_dir",
-             epoch: int | None = None, epoch_field: str = "phase1_epoch"):
-    """A run's agent and its newest good checkpoint (or ``epoch``'s): ``(agent, epoch, state)``.
-
-    ``stops`` replaces the run's loop fields (epochs, step budget); ``field`` is the CLI field
-    that errors about ``run_dir`` name.
-    """
-    cfg = _with_stops(read_run_config(Path(run_dir), field), stops)
+def load_run(run_dir: Path, field: str = "run_dir", epoch: int | None = None, epoch_field: str = "phase1_epoch"):
+    """A run's agent and its newest good checkpoint (or ``epoch``'s), to read: ``(agent, epoch,
+    state)``. ``field`` is the CLI field that errors about ``run_dir`` name."""
+    cfg = read_run_config(Path(run_dir), field)
     if cfg.shards > 1:  # a split run: shard 0's state (its networks are every shard's) and agent
         program = ShardedAgent(cfg, 1)
-        epoch, state = _restore(Path(run_dir), program, jax.eval_shape(program.init), fallback, epoch,
+        epoch, state = _restore(Path(run_dir), program, jax.eval_shape(program.init), epoch=epoch,
                                 epoch_field=epoch_field)
         return program.alone, epoch, shard_slice(state, 0)
     trainer = make_agent(cfg)
-    epoch, state = _restore(Path(run_dir), trainer, jax.eval_shape(trainer.init), fallback, epoch,
-                            epoch_field=epoch_field)
+    epoch, state = _restore(Path(run_dir), trainer, jax.eval_shape(trainer.init), epoch=epoch, epoch_field=epoch_field)
     return trainer, epoch, state
 
 
@@ -255,8 +251,8 @@ def resume(exp: ResumeExperiment, film: Film | None = None):
     skills.json) as :func:`resume_phase2` does, a phase-1 run on ``exp.num_devices`` devices
     otherwise; returns the final state."""
     if exp.phase2 and not (Path(exp.resume) / SKILLS_FILE).exists():
-        phase2_dir = Path(exp.resume) / PHASE2_SUBDIR
-        if not (phase2_dir / CONFIG_FILE).exists():
+        phase2_dir = own_phase2(exp.resume)
+        if phase2_dir is None:
             raise ConfigError(f"resume: {exp.resume} holds no phase 2 to continue; start one with "
                               f"`mjx-emp phase2 {exp.resume}`")
         exp = dataclasses.replace(exp, resume=str(phase2_dir))
@@ -355,10 +351,8 @@ def load_phase2(phase2_dir: Path, fallback: bool = False, stops: dict | None = N
 def load_run_phase2(run_dir: Path) -> tuple | None:
     """A phase-1 run's own phase 2 (RUN_DIR/phase2) as :func:`load_phase2` gives it, or None
     where the run has none, for evaluations that report phase 2 beside phase 1."""
-    phase2_dir = Path(run_dir) / PHASE2_SUBDIR
-    if not (phase2_dir / CONFIG_FILE).exists():
-        return None
-    return load_phase2(phase2_dir)
+    phase2_dir = own_phase2(run_dir)
+    return None if phase2_dir is None else load_phase2(phase2_dir)
 
 
 def resume_phase2(exp: ResumeExperiment, film: Film | None = None):

@@ -59,9 +59,9 @@ SKILLS_FILE = "skills.json"
 def default_run_dir(cfg) -> str:
     """A fresh run directory name: runs/<env>-k<k>-<date>-<time> for HE, runs/<algorithm>-<env>-<date>-<time>
     for the others."""
-    stamp = time.strftime('%Y%m%d-%H%M%S')
-    name = algorithm_of(cfg).name
-    return f"runs/{cfg.env}-k{cfg.k}-{stamp}" if name == "he" else f"runs/{name}-{cfg.env}-k{cfg.k}-{stamp}"
+    algorithm = algorithm_of(cfg)
+    prefix = algorithm.name if algorithm.run_dir_prefix is None else algorithm.run_dir_prefix
+    return f"runs/{prefix + '-' if prefix else ''}{cfg.env}-k{cfg.k}-{time.strftime('%Y%m%d-%H%M%S')}"
 
 
 def seed_run_dirs(base: str, seeds: tuple[int, ...]) -> list[str]:
@@ -401,3 +401,10 @@ def run_skill_kind(run_dir: Path, field: str = "run_dir") -> str:
     if not (Path(run_dir) / CONFIG_FILE).exists():
         return GOAL_SPACES
     return skill_kind(read_run_config(Path(run_dir), field))
+
+
+def own_phase2(run_dir: Path | str) -> Path | None:
+    """A phase-1 run's own phase-2 directory (RUN_DIR/phase2) where it holds a phase-2 run (its
+    config), else None."""
+    phase2_dir = Path(run_dir) / PHASE2_SUBDIR
+    return phase2_dir if (phase2_dir / CONFIG_FILE).exists() else None

@@ -211,6 +211,14 @@ def copy_skills(job: Job, dirs: list[Path], configs: list[Any]) -> list[str]:
     return done or ["phase 1 copied earlier"]
 
 
+def same_phase2(held: Phase2Config, wanted: Phase2Config) -> bool:
+    """Whether a phase-2 directory holding ``held`` is the row's ``wanted`` phase 2, differing at
+    most in when it stops (epochs, step budget: what a resume may change) and in the phase-1
+    epoch it was recorded to build on (the run's, where the row asks for the newest)."""
+    return compile_identity(dataclasses.replace(held, phase1_epoch=-1)) == \
+        compile_identity(dataclasses.replace(wanted, phase1_epoch=-1))
+
+
 def phase2_row(job: Job) -> list[str]:
     """Phase 2 of every seed of the job's row (none without a phase-2 preset): trained, resumed
     or left alone when finished."""
@@ -221,15 +229,14 @@ def phase2_row(job: Job) -> list[str]:
     for seed, run_dir in zip(row.seeds, map(Path, job.run_dirs)):
         phase2_dir = run_dir / store.PHASE2_SUBDIR
         if (phase2_dir / store.CONFIG_FILE).exists():
-            held = store.read_run_config(phase2_dir, "out", Phase2Config)
-            if dataclasses.replace(held, phase1_epoch=-1, epochs=row.phase2.epochs) != \
-                    dataclasses.replace(row.phase2, phase1_epoch=-1):
+            if not same_phase2(store.read_run_config(phase2_dir, "out", Phase2Config), row.phase2):
                 raise ConfigError(f"row {row.name!r}: {phase2_dir} holds a phase 2 of another config than the row "
                                   f"asks for; move it away")
             if finished(phase2_dir, row.phase2):
                 continue
             if store.newest_checkpoint_on_disk(phase2_dir) is not None:
-                jobs.resume_phase2(ResumeExperiment(resume=str(phase2_dir), epochs=row.phase2.epochs))
+                jobs.resume_phase2(ResumeExperiment(resume=str(phase2_dir), epochs=row.phase2.epochs,
+                                                    max_env_steps=row.phase2.max_env_steps))
                 done.append(f"resumed phase 2 of seed {seed}")
                 continue
         jobs.train_phase2(Phase2Experiment(run_dir=str(run_dir), config=row.phase2),
