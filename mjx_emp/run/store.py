@@ -57,8 +57,8 @@ SKILLS_FILE = "skills.json"
 
 
 def default_run_dir(cfg) -> str:
-    """A fresh run directory name: runs/<env>-k<k>-<date>-<time> for HE, runs/<algorithm>-<env>-<date>-<time>
-    for the others."""
+    """A fresh run directory name: runs/<prefix>-<env>-k<k>-<date>-<time>, the prefix the
+    algorithm's registry entry gives (``run_dir_prefix``; HE's is empty, so runs/<env>-k<k>-...)."""
     algorithm = algorithm_of(cfg)
     prefix = algorithm.name if algorithm.run_dir_prefix is None else algorithm.run_dir_prefix
     return f"runs/{prefix + '-' if prefix else ''}{cfg.env}-k{cfg.k}-{time.strftime('%Y%m%d-%H%M%S')}"

@@ -227,8 +227,8 @@ def phase2_row(job: Job) -> list[str]:
         return []
     done = []
     for seed, run_dir in zip(row.seeds, map(Path, job.run_dirs)):
-        phase2_dir = run_dir / store.PHASE2_SUBDIR
-        if (phase2_dir / store.CONFIG_FILE).exists():
+        phase2_dir = store.own_phase2(run_dir)
+        if phase2_dir is not None:
             if not same_phase2(store.read_run_config(phase2_dir, "out", Phase2Config), row.phase2):
                 raise ConfigError(f"row {row.name!r}: {phase2_dir} holds a phase 2 of another config than the row "
                                   f"asks for; move it away")
