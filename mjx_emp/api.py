@@ -16,13 +16,10 @@ from mjx_emp.algos.registry import GOAL_SPACES, algorithm_of, all_presets, skill
 from mjx_emp.checks import config_from_dict
 from mjx_emp.commands import ExportExperiment, TrainExperiment
 from mjx_emp.errors import ConfigError
+from mjx_emp.metrics import AGENT_FIELDS
 from mjx_emp.run import jobs, store
 from mjx_emp.run.evaluate import evaluation_row
 from mjx_emp.run.sweep import sweep as run_sweep
-
-EPOCH_FIELDS = ("epoch", "env_steps", "epoch_env_steps", "seconds", "env_steps_per_s", "flip_resets",
-                "checkpoint_blocked_s")
-"""Fields of an epoch's metrics line that belong to the whole agent, whatever the algorithm."""
 
 
 def one_schema(line: dict, algorithm: str) -> dict:
@@ -31,7 +28,7 @@ def one_schema(line: dict, algorithm: str) -> dict:
     METRA, has one: level 0 with every other field of its line)."""
     if "levels" in line:
         return {**line, "algorithm": algorithm}
-    epoch = {name: line[name] for name in EPOCH_FIELDS if name in line}
+    epoch = {name: line[name] for name in AGENT_FIELDS if name in line}
     level = {"level": 0, **{name: value for name, value in line.items() if name not in epoch and name != "algorithm"}}
     return {**epoch, "algorithm": algorithm, "levels": [level]}
 

@@ -132,15 +132,20 @@ def aggregate_phase2(reports: Sequence[dict]) -> dict:
     return figures
 
 
+HEADER_FIELDS = ("epoch", "env_steps", "epoch_env_steps", "seconds", "env_steps_per_s")
+"""The fields every epoch's metrics line starts with (:func:`epoch_header`)."""
+
+AGENT_FIELDS = (*HEADER_FIELDS, "flip_resets", "checkpoint_blocked_s")
+"""The fields of an epoch's metrics line that belong to the whole agent, whatever the algorithm:
+the header, the resets of flipped environments and the time the loop waited on a checkpoint."""
+
+
 def epoch_header(state: Any, epoch_env_steps: float, seconds: float) -> dict[str, Any]:
-    """The fields every epoch's metrics line starts with: counters and throughput.
+    """The fields every epoch's metrics line starts with (:data:`HEADER_FIELDS`): counters and
+    throughput.
 
     ``state`` is any train state with an ``epoch`` array and an ``env_steps`` StepCounter.
     """
-    return {
-        "epoch": int(state.epoch),
-        "env_steps": float(state.env_steps.value()),
-        "epoch_env_steps": epoch_env_steps,
-        "seconds": seconds,
-        "env_steps_per_s": epoch_env_steps / seconds if seconds > 0 else None,
-    }
+    values = (int(state.epoch), float(state.env_steps.value()), epoch_env_steps, seconds,
+              epoch_env_steps / seconds if seconds > 0 else None)
+    return dict(zip(HEADER_FIELDS, values, strict=True))
