@@ -99,7 +99,7 @@ class SkillAgent(SkillPolicies, SkillEvaluation):
         example = self.example_transition()
         sac = self.sac.init(sac_key, self.policy_input(example.obs, example.s0, example.skill))
         params = self.model_net.init(model_key, self.model_input(example))
-        log_lam = jnp.log(jnp.asarray(getattr(cfg, "dual_lam", 1.0), jnp.float32))
+        log_lam = jnp.log(jnp.asarray(self.skill_method.initial_dual(cfg), jnp.float32))
         model = SkillModel(params=params, opt=self.model_tx.init(params), log_lam=log_lam,
                            lam_opt=self.model_tx.init(log_lam))
         return SkillState(

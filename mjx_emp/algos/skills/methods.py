@@ -77,6 +77,11 @@ class SkillMethod:
         """Whether the model is a posterior q(z | ...) whose spread Levy et al. report."""
         return False
 
+    def initial_dual(self, cfg) -> float:
+        """The dual variable's first value: 1.0 (unused) for a method without a constraint."""
+        del cfg
+        return 1.0
+
     def model_net(self, hidden: tuple[int, ...], skill_dim: int, descriptor_size: int):
         """The model's network."""
         raise NotImplementedError
@@ -162,6 +167,10 @@ class Metra(SkillMethod):
     """METRA: phi with ||phi(s') - phi(s)|| <= 1 by dual gradient descent; z on the unit sphere."""
 
     reports: str | None = "dual_lambda"
+
+    def initial_dual(self, cfg) -> float:
+        """lambda of the constraint ||phi(s') - phi(s)|| <= 1 starts at the config's ``dual_lam``."""
+        return cfg.dual_lam
 
     def model_net(self, hidden, skill_dim, descriptor_size):
         return MLP(hidden, skill_dim)
