@@ -157,6 +157,11 @@ class Env:
             parts.append(self.cage.is_open(state.data)[None].astype(state.data.qpos.dtype))
         return jnp.concatenate(parts)
 
+    def initial_obs(self) -> np.ndarray:
+        """Observation of the task's initial state, computed eagerly (a constant under jit)."""
+        with jax.ensure_compile_time_eval():
+            return np.asarray(self.observe(self.reset(jax.random.key(0))))
+
     def features(self, obs: jax.Array) -> jax.Array:
         """What networks see of an observation.
 

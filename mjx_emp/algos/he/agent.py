@@ -114,9 +114,8 @@ class HEAgent(HECollection, HELearning, HEEvaluation):
     # ---- state ----------------------------------------------------------------------
     @functools.cached_property
     def initial_obs(self) -> np.ndarray:
-        """Observation of the task's initial state (computed eagerly, a constant under jit)."""
-        with jax.ensure_compile_time_eval():
-            return np.asarray(self.env.observe(self.env.reset(jax.random.key(0))))
+        """Observation of the task's initial state (a constant under jit), computed once."""
+        return self.env.initial_obs()
 
     def init(self, key: jax.Array | None = None) -> HEState:
         """Fresh networks, empty replay buffers, start buffers holding the initial state."""

@@ -80,9 +80,8 @@ class SkillAgent(SkillPolicies, SkillEvaluation):
     # ---- state ----------------------------------------------------------------------
     @functools.cached_property
     def initial_obs(self) -> np.ndarray:
-        """Observation of the initial state (a constant under jit)."""
-        with jax.ensure_compile_time_eval():
-            return np.asarray(self.env.observe(self.env.reset(jax.random.key(0))))
+        """Observation of the task's initial state (a constant under jit), computed once."""
+        return self.env.initial_obs()
 
     def example_transition(self) -> SkillTransition:
         obs = jnp.asarray(self.initial_obs)
