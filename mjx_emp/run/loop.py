@@ -88,11 +88,16 @@ def env_steps_of(state) -> int:
     return StepCounter(hi=_first(state.env_steps.hi), lo=_first(state.env_steps.lo)).value()
 
 
-def _budget_spent(states: list, budgets: list[int | None]) -> bool:
-    """Whether training stops for its step budget: every member state has reached its
-    ``max_env_steps`` (None: no budget, never spent)."""
-    return all(budget is not None for budget in budgets) and all(
-        env_steps_of(state) >= budget for state, budget in zip(states, budgets))
+def training_done(epoch: int, env_steps: float, epochs: int, max_env_steps: int | None) -> bool:
+    """Whether a run's training is over: at its epoch count, or with its ``max_env_steps`` spent
+    (None: no budget). The loop stops here, and the sweep reads a run directory by it."""
+    return epoch >= epochs or (max_env_steps is not None and env_steps >= max_env_steps)
+
+
+def _all_done(states: list, epochs: int, budgets: list[int | None]) -> bool:
+    """Whether every member's training is over (:func:`training_done`; they share one epoch)."""
+    return all(training_done(epoch_of(state), env_steps_of(state), epochs, budget)
+               for state, budget in zip(states, budgets))
 
 
 def train(program, state, members: list[Member], keep_checkpoints: int = 3,
@@ -128,7 +133,7 @@ def train(program, state, members: list[Member], keep_checkpoints: int = 3,
             for member, checkpoints, (member_state, _) in zip(members, kept, parts):
                 if epoch_of(member_state) not in checkpoints.epochs():  # a new run's epoch 0
                     checkpoints.save(epoch_of(member_state), member_state, member.trainer.cfg)
-            while not (epoch_of(parts[0][0]) >= epochs or _budget_spent([p[0] for p in parts], budgets)):
+            while not _all_done([p[0] for p in parts], epochs, budgets):
                 start = time.perf_counter()
                 state, stats = program.train_epoch(state)
                 jax.block_until_ready(state)

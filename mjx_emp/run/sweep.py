@@ -41,7 +41,7 @@ from mjx_emp.errors import ConfigError, Interrupted, JobFailed
 from mjx_emp.phase2.config import Phase2Config
 from mjx_emp.run import jobs, store
 from mjx_emp.run.evaluate import evaluation_row
-from mjx_emp.run.loop import SignalStop
+from mjx_emp.run.loop import SignalStop, training_done
 from mjx_emp.run.provenance import run_record
 from mjx_emp.run.rows import RESULTS_DIR, append_row, read_rows
 from mjx_emp.run.seeds import resume_seeds
@@ -83,13 +83,9 @@ def finished(run_dir: Path, cfg: Any) -> bool:
     newest = store.newest_checkpoint_on_disk(Path(run_dir))
     if newest is None:
         return False
-    if newest >= cfg.epochs:
-        return True
-    budget = getattr(cfg, "max_env_steps", None)
-    if budget is None:
-        return False
     lines = [line for line in store.read_metrics(Path(run_dir)) if line.get("epoch") == newest]
-    return bool(lines) and lines[-1].get("env_steps", 0) >= budget
+    env_steps = lines[-1].get("env_steps", 0) if lines else 0
+    return training_done(newest, env_steps, cfg.epochs, cfg.max_env_steps)
 
 
 def stored_rows(results: Path, spec: Spec) -> dict[tuple[str, int], dict]:
