@@ -74,7 +74,18 @@ def test_an_episode_begun_on_its_back_has_not_flipped():
     obs = np.asarray(episodes.levels[0].obs).copy()
     obs[:, 2, 1] = np.pi  # environment 2 starts on its back and stays there, as a Half Cheetah may
     rows = episodes.levels[0].replace(obs=obs, next_obs=np.roll(obs, -1, axis=0))
-    assert flips.flip_steps(PitchEnv(), dataclasses.replace(episodes, levels=(rows,))).tolist() == [3, 2, -1]
+    on_its_back = dataclasses.replace(episodes, levels=(rows,))
+    flipped_at = flips.flip_steps(PitchEnv(), on_its_back)
+    assert flipped_at.tolist() == [3, 2, -1]
+    # ... nor has it stayed upright: the steps before the end of the upright episodes, and the
+    # threshold a reflex would read from them, leave it out (there are none left here).
+    assert flips.stayed_upright(PitchEnv(), on_its_back, flipped_at).tolist() == [False, False, False]
+    before = flips.before_flip(PitchEnv(), on_its_back, flipped_at)
+    assert before["upright_tilt"] == [None] * flips.STEPS_BEFORE and before["upright_tilt_quantiles"] is None
+    assert before["tilt_warning"]["threshold"] is None
+    # Upright, the same environment is the baseline: its tilt 0 at every step.
+    upright = flips.before_flip(PitchEnv(), episodes, flips.flip_steps(PitchEnv(), episodes))
+    assert upright["upright_tilt_quantiles"]["max"] == 0.0
 
 
 def test_goal_places_and_subgoal_sizes_bin_the_episodes_that_flipped():

@@ -159,27 +159,36 @@ def warning(flipped_series: np.ndarray, upright_values: np.ndarray) -> dict:
             "median_lead": float(np.median(lead[warned])) if warned.any() else None}
 
 
+def stayed_upright(env, episodes: FirstEpisodes, flipped_at: np.ndarray) -> np.ndarray:
+    """[B]: the first episodes that did not flip and never had the torso upside down. An
+    episode begun on its back (a Half Cheetah's chained start may be) has not flipped, and it
+    has not stayed upright either: it is in neither group of :func:`before_flip`."""
+    low = episodes.levels[0]
+    on_back = (tilt(env, np.asarray(low.obs)) > 1.0) & in_first_episode(low, episodes.first_end)
+    return (flipped_at < 0) & ~on_back.any(axis=0)
+
+
 def before_flip(env, episodes: FirstEpisodes, flipped_at: np.ndarray) -> dict:
     """Tilt and angular speed of the torso in the :data:`STEPS_BEFORE` states before each flip
     (0: the state the flipping action was taken in) against the same steps before the end of
-    the episodes that stayed upright; the upright episodes' quantiles of both; and
-    :func:`warning` for each."""
+    the episodes that stayed upright (:func:`stayed_upright`); those episodes' quantiles of
+    both; and :func:`warning` for each."""
     low = episodes.levels[0]
     obs = np.asarray(low.obs)
     tilts, spins = tilt(env, obs), np.asarray(env.torso.angular_speed(obs))
-    flipped = flipped_at >= 0
+    flipped, upright = flipped_at >= 0, stayed_upright(env, episodes, flipped_at)
     end = np.where(flipped, flipped_at, episodes.first_end)
-    upright_steps = in_first_episode(low, episodes.first_end)[:, ~flipped]
+    upright_steps = in_first_episode(low, episodes.first_end)[:, upright]
     table: dict[str, Any] = {"steps_before": list(range(STEPS_BEFORE))}
     for name, values in (("tilt", tilts), ("angular_speed", spins)):
         series = steps_before_end(values, end)
-        upright = values[:, ~flipped][upright_steps]
+        upright_values = values[:, upright][upright_steps]
         table[f"flipped_{name}"] = _mean_or_none(series[:, flipped])
-        table[f"upright_{name}"] = _mean_or_none(series[:, ~flipped])
+        table[f"upright_{name}"] = _mean_or_none(series[:, upright])
         table[f"upright_{name}_quantiles"] = (
-            {f"q{int(q * 100)}": float(np.quantile(upright, q)) for q in (0.5, 0.95, WARNING_QUANTILE)}
-            | {"max": float(upright.max())} if upright.size else None)
-        table[f"{name}_warning"] = warning(series[:, flipped], values[:, ~flipped][upright_steps])
+            {f"q{int(q * 100)}": float(np.quantile(upright_values, q)) for q in (0.5, 0.95, WARNING_QUANTILE)}
+            | {"max": float(upright_values.max())} if upright_values.size else None)
+        table[f"{name}_warning"] = warning(series[:, flipped], upright_values)
     return table
 
 
