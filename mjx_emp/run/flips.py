@@ -87,14 +87,23 @@ def tilt(env, obs) -> np.ndarray:
     return np.asarray(env.torso.tilt(np.asarray(obs)))
 
 
+def upside_down(env, obs) -> np.ndarray:
+    """Whether the torso's up axis points below the horizon (``Torso.upside_down``)."""
+    return np.asarray(env.torso.upside_down(np.asarray(obs)))
+
+
+def turned_over(env, rows: Transition) -> np.ndarray:
+    """[T, B]: the rows whose action took the torso from upright to upside down."""
+    return ~upside_down(env, rows.obs) & upside_down(env, rows.next_obs)
+
+
 def flip_steps(env, episodes: FirstEpisodes) -> np.ndarray:
     """[B]: the primitive step at which each first episode flipped, -1 where it did not: the
     first step in it that a reset cut short (for the Ant a flip; broken physics, as rare as it
     is, counts too) or that turned the torso from upright to upside down (an episode begun on
     its back, as a Half Cheetah's chained start may be, has not flipped by staying there)."""
     low = episodes.levels[0]
-    turned = (tilt(env, low.obs) <= 1.0) & (tilt(env, low.next_obs) > 1.0)
-    down = np.asarray(low.cut) | (np.asarray(low.valid) & turned)
+    down = np.asarray(low.cut) | (np.asarray(low.valid) & turned_over(env, low))
     down &= in_first_episode(low, episodes.first_end)
     return np.where(down.any(axis=0), down.argmax(axis=0), -1)
 
@@ -164,7 +173,7 @@ def stayed_upright(env, episodes: FirstEpisodes, flipped_at: np.ndarray) -> np.n
     episode begun on its back (a Half Cheetah's chained start may be) has not flipped, and it
     has not stayed upright either: it is in neither group of :func:`before_flip`."""
     low = episodes.levels[0]
-    on_back = (tilt(env, np.asarray(low.obs)) > 1.0) & in_first_episode(low, episodes.first_end)
+    on_back = upside_down(env, low.obs) & in_first_episode(low, episodes.first_end)
     return (flipped_at < 0) & ~on_back.any(axis=0)
 
 
@@ -244,7 +253,7 @@ def subgoal_flips(env, top: Transition, first_end: np.ndarray) -> dict:
     short, or it began upright and ended upside down)."""
     ended = (np.asarray(top.valid) | np.asarray(top.cut)) & in_first_episode(top, first_end)
     size = np.linalg.norm(np.asarray(top.action), axis=-1)[ended]
-    flipped = (np.asarray(top.cut) | ((tilt(env, top.obs) <= 1.0) & (tilt(env, top.next_obs) > 1.0)))[ended]
+    flipped = (np.asarray(top.cut) | turned_over(env, top))[ended]
     bins = np.clip(np.digitize(size, SUBGOAL_EDGES[1:-1]), 0, len(SUBGOAL_EDGES) - 2)
     return {**_binned(bins, flipped, SUBGOAL_EDGES), "edges": [float(e) for e in SUBGOAL_EDGES[:-1]] + [None]}
 
@@ -272,7 +281,7 @@ def attempt_rows(env, top: Transition, first_end: np.ndarray, attempts: int) -> 
     goal = np.asarray(top.goal)
     before = np.linalg.norm(np.asarray(env.goal_of_obs(np.asarray(top.obs))) - goal, axis=-1)
     after = np.linalg.norm(np.asarray(env.goal_of_obs(np.asarray(top.next_obs))) - goal, axis=-1)
-    down_before, down_after = np.asarray(env.torso.upside_down(top.obs)), np.asarray(env.torso.upside_down(top.next_obs))
+    down_before, down_after = upside_down(env, top.obs), upside_down(env, top.next_obs)
     rows = []
     for i in range(attempts):
         at = ended & (index == i)
