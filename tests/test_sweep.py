@@ -8,6 +8,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import json
+import os
 import signal
 import subprocess
 import time
@@ -154,6 +155,38 @@ def test_a_stopped_sweep_says_so_in_one_line_and_called_again_ends_with_the_same
     assert rows[0]["evaluation"]["did"][0].startswith("resumed seeds 0, 1 as one program")
     assert [r["row"] for r in rows] == ["he-k1", "he-k1"]
     assert [comparable(r) for r in rows] == [comparable(r) for r in read_rows(swept / "rows.jsonl") if r["row"] == "he-k1"]
+
+
+def test_a_sweep_stopped_while_one_of_two_workers_is_idle_still_ends(tmp_path):
+    """Two workers, and the first row's job over while the second still trains: SIGTERM to the
+    sweep reaches both workers. The idle one lives through it (the pool shuts down in order
+    instead of breaking and waiting on the other forever), the training one stops at a
+    checkpoint, and the sweep exits 143 with the first row's row stored."""
+    spec = tmp_path / SMOKE.name
+    short, long = SMOKE.read_text().split('\n[[row]]\nname = "he-k2"')
+    short = short.replace("seeds = [0, 1]", "seeds = [0]").replace("epochs = 3,", "epochs = 1,")
+    short = "\n".join(line for line in short.splitlines() if not line.startswith("phase2")) + "\n"
+    long = long.replace("seeds = [0, 1]", "seeds = [0]").replace("epochs = 2,", "epochs = 5000,", 1)
+    spec.write_text(short + '\n[[row]]\nname = "he-k2"' + long)
+    rows = tmp_path / "rows.jsonl"
+    process = subprocess.Popen(mjx_emp("sweep", str(spec), "--runs", str(tmp_path / "runs"), "--results", str(rows),
+                                       "--workers", "2"),
+                               stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    deadline = time.monotonic() + 400
+    while not (rows.exists() and read_rows(rows)):
+        assert process.poll() is None and time.monotonic() < deadline, "the sweep ended before its first row"
+        time.sleep(0.1)
+    process.send_signal(signal.SIGTERM)
+    try:
+        _, stderr = process.communicate(timeout=120)
+    except subprocess.TimeoutExpired:
+        os.killpg(process.pid, signal.SIGKILL)
+        pytest.fail("the sweep did not end within 120 s of SIGTERM")
+    assert process.returncode == 128 + signal.SIGTERM, stderr[-3000:]
+    assert stderr.startswith("mjx-emp: sweep smoke-point-mass stopped by SIGTERM with 1 of 2 runs evaluated"), stderr
+    assert [row["row"] for row in read_rows(rows)] == ["he-k1"]
+    worker_log = (tmp_path / "runs" / "smoke-point-mass" / "logs" / "he-k2.log").read_text()
+    assert "stopped by SIGTERM; the newest checkpoint is epoch" in worker_log, worker_log[-2000:]
 
 
 def test_a_row_with_skills_from_builds_its_phase_2_on_a_copy_of_the_other_rows_runs(swept, tmp_path):

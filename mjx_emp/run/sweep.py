@@ -244,24 +244,24 @@ def phase2_row(job: Job) -> list[str]:
 
 def run_job(job: Job) -> list[dict]:
     """Everything a row needs, in one worker: phase 1, phase 2, then each seed's evaluation row.
-    Its output goes to the job's log file."""
-    with _output_to(Path(job.log)):
+    Its output goes to the job's log file. SIGINT or SIGTERM at any point of it raises
+    :class:`Interrupted` (training stops at its newest checkpoint)."""
+    with _output_to(Path(job.log)), SignalStop().installed():
         print(f"== {time.strftime('%Y-%m-%d %H:%M:%S')} row {job.row.name} of {job.spec}", flush=True)
         try:
             done = train_row(job)
             jax.clear_caches()  # each step compiles its own programs; memory mappings are finite (vm.max_map_count)
             done += phase2_row(job)
+            rows = []
+            for run_dir, eval_seed in zip(job.run_dirs, job.eval_seeds):
+                print(f"evaluating {run_dir} ...", flush=True)
+                row = evaluation_row(Path(run_dir), eval_seed, job.row.episodes, job.command, job.spec,
+                                     job.row.name, job.coverage_draws)
+                row["evaluation"]["did"] = done
+                rows.append(json.loads(json.dumps(row)))
         except Interrupted as stop:
             print(f"== {time.strftime('%Y-%m-%d %H:%M:%S')} {stop}", flush=True)
             raise
-
-        rows = []
-        for run_dir, eval_seed in zip(job.run_dirs, job.eval_seeds):
-            print(f"evaluating {run_dir} ...", flush=True)
-            row = evaluation_row(Path(run_dir), eval_seed, job.row.episodes, job.command, job.spec,
-                                 job.row.name, job.coverage_draws)
-            row["evaluation"]["did"] = done
-            rows.append(json.loads(json.dumps(row)))
         return rows
 
 
@@ -291,13 +291,18 @@ class _output_to:
         self.log.close()
 
 
-def _die_with_parent() -> None:
+def _local_worker() -> None:
     """A local worker dies with the sweep that started it (Linux), so that a killed sweep leaves
-    no orphan training behind the run locks of the next call."""
+    no orphan training behind the run locks of the next call; and between jobs it ignores SIGINT
+    and SIGTERM, so that a stop passed on to every worker (:func:`signal_workers`) ends the jobs
+    (each stops itself, :func:`run_job`) and leaves an idle worker alive for the pool's orderly
+    shutdown, where its death would break the pool and leave the shutdown waiting."""
     try:
         ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
     except (OSError, AttributeError):
         pass
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, signal.SIG_IGN)
 
 
 # ---- the sweep ----------------------------------------------------------------------------------
@@ -361,7 +366,7 @@ def _executor(kind: str, workers: int, folder: Path, slurm: dict[str, Any]):
     executor) writing its files under ``folder``."""
     if kind == "local":
         return concurrent.futures.ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context(
-            "spawn"), initializer=_die_with_parent)
+            "spawn"), initializer=_local_worker)
     try:
         import submitit
     except ImportError:
@@ -470,8 +475,6 @@ def job_rows(job: Job, future: Any) -> list[dict]:
         return future.result()
     except Interrupted:  # the signal reached the worker too (Ctrl-C): the sweep stops, not a job failure
         raise
-    except KeyboardInterrupt:  # ... where the worker was not training (phase 2's evaluation)
-        raise Interrupted("SIGINT", signal.SIGINT) from None
     except ConfigError as err:
         raise ConfigError(f"{err} (log: {job.log})") from None
     except Exception as err:  # a worker's failure: its row is named, its log holds the traceback
