@@ -52,15 +52,23 @@ value JAX cannot hold (a seed of 2**64) is refused up front instead of running u
 or failing deep inside JAX."""
 
 
+def check_seed(seed: int) -> None:
+    """A seed JAX can take: in [0, :data:`LOOP_BOUNDS` ``["seed"]``]."""
+    most = LOOP_BOUNDS["seed"]
+    if not 0 <= seed <= most:
+        raise ConfigError(f"seed: must be in [0, {most:,}]; got {seed:,}")
+
+
 def check_bounds(cfg) -> None:
-    """Every field of :data:`LOOP_BOUNDS` the config has is within its bound (and a seed >= 0)."""
+    """Every field of :data:`LOOP_BOUNDS` the config has is within its bound (a seed also >= 0)."""
     for name, most in LOOP_BOUNDS.items():
         value = getattr(cfg, name, None)
-        if value is not None and not isinstance(value, bool) and isinstance(value, int) and value > most:
+        if value is None or isinstance(value, bool) or not isinstance(value, int):
+            continue
+        if name == "seed":
+            check_seed(value)
+        elif value > most:
             raise ConfigError(f"{name}: must be at most {most:,}; got {value:,}")
-    seed = getattr(cfg, "seed", None)
-    if isinstance(seed, int) and seed < 0:
-        raise ConfigError(f"seed: must be >= 0; got {seed}")
 
 
 def check_capacity(cfg, name: str, least: dict[str, int]) -> None:

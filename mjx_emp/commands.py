@@ -14,7 +14,7 @@ from typing import Annotated, Generic, Literal, TypeVar
 
 import tyro
 
-from mjx_emp.checks import LOOP_BOUNDS, check_levels
+from mjx_emp.checks import check_levels, check_seed
 from mjx_emp.envs.registry import DOMAIN_NAMES
 from mjx_emp.errors import ConfigError
 from mjx_emp.phase2.config import Phase2Config
@@ -392,12 +392,6 @@ def check_rollout(exp: RolloutExperiment) -> None:
             raise ConfigError(f"{name}: must be >= 1; got {getattr(exp, name)}")
     if not exp.root_goal_half_width > 0:
         raise ConfigError(f"root_goal_half_width: must be > 0; got {exp.root_goal_half_width}")
-
-
-def check_seed(seed: int) -> None:
-    """An evaluation or render seed JAX can take: the configs' seed bound (:data:`LOOP_BOUNDS`)."""
-    if not 0 <= seed <= LOOP_BOUNDS["seed"]:
-        raise ConfigError(f"seed: must be in [0, 2**63); got {seed}")
 
 
 def check_distinct_runs(run_dirs: tuple[str, ...], command: str) -> None:

@@ -120,10 +120,10 @@ def test_the_property_covers_every_numeric_flag():
 @pytest.mark.parametrize("argv, named", [
     (["train", "point-mass-k1", "--epochs", "1e20"], "--epochs"),
     (["train", "point-mass-k1", "--epochs", str(10**20)], "epochs: must be at most"),
-    (["train", "point-mass-k1", "--seed", str(2**64)], "seed: must be at most"),
+    (["train", "point-mass-k1", "--seed", str(2**64)], "seed: must be in [0, 9,223,372,036,854,775,807]"),
     (["train", "point-mass-k1", "--video-steps", str(10**11)], "video_steps: must be in [0, 100000]"),
     (["render", "no-run", "--width", "100000", "--height", "100000"], "width: must be in [1, 8192]"),
-    (["eval", "no-run", "--seed", str(2**64)], "seed: must be in [0, 2**63)"),
+    (["eval", "no-run", "--seed", str(2**64)], "seed: must be in [0, 9,223,372,036,854,775,807]"),
     (["train", "point-mass-k1", "--num-envs", "nan"], "--num-envs"),
     (["eval", "no-run", "--bogus", "1"], "Unrecognized options"),
 ])
