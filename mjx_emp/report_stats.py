@@ -203,6 +203,16 @@ def summary(values: Sequence[float], reps: int = DEFAULT_REPS, seed: int = 0) ->
             "iqm": iqm, "iqm_low": low, "iqm_high": high}
 
 
+def pairwise_improvement(a: np.ndarray, b: np.ndarray) -> float:
+    """P(a run of A beats a run of B), ties counted half, over every pair of runs: the Mann-Whitney
+    U statistic over the number of pairs, the figure rliable's ``probability_of_improvement``
+    gives for one task (bit for bit: both are a count of halves over the same divisor), counted
+    with one comparison of arrays instead of one statistical test per bootstrap sample."""
+    beats = np.count_nonzero(a[:, None] > b[None, :])
+    ties = np.count_nonzero(a[:, None] == b[None, :])
+    return (beats + 0.5 * ties) / (len(a) * len(b))
+
+
 def probability_of_improvement(x: Sequence[float], y: Sequence[float], lower_is_better: bool = False,
                                reps: int = DEFAULT_REPS, seed: int = 0) -> tuple[float, float, float] | None:
     """(P, low, high): the probability that a run of X beats a run of Y (ties count half), by
@@ -211,13 +221,13 @@ def probability_of_improvement(x: Sequence[float], y: Sequence[float], lower_is_
     either side has no runs."""
     if len(x) == 0 or len(y) == 0:
         return None
-    library, metrics = rliable_modules()
+    library, _ = rliable_modules()
 
     sign = -1.0 if lower_is_better else 1.0
     xs, ys = sign * score_matrix(x), sign * score_matrix(y)
 
     def improvement(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        return np.array([metrics.probability_of_improvement(a, b)])
+        return np.array([pairwise_improvement(a[:, 0], b[:, 0])])
 
     with seeded_numpy(seed):
         points, intervals = library.get_interval_estimates(

@@ -14,6 +14,7 @@ from mjx_emp.report_stats import (
     METRICS,
     metric_named,
     metric_values,
+    pairwise_improvement,
     probability_of_improvement,
     summary,
 )
@@ -91,6 +92,19 @@ def test_smaller_distances_beat_larger_ones_for_a_lower_is_better_metric():
     p, low, high = probability_of_improvement([0.1, 0.6], [0.5, 0.7], lower_is_better=True, reps=REPS)
     assert p == 0.75 and low <= p <= high
     assert probability_of_improvement([], far, True, reps=REPS) is None
+
+
+def test_the_pairwise_improvement_is_rliables_probability_of_improvement_bit_for_bit():
+    """Our count over pairs gives what rliable's Mann-Whitney statistic gives for one task,
+    ties (within and across the two sides) and identical sides included."""
+    import numpy as np
+    import rliable.metrics
+
+    rng = np.random.default_rng(0)
+    for _ in range(500):
+        a = rng.integers(0, 4, size=rng.integers(1, 7)) * 0.37
+        b = a.copy() if rng.random() < 0.1 else rng.integers(0, 4, size=rng.integers(1, 7)) * 0.37
+        assert pairwise_improvement(a, b) == float(rliable.metrics.probability_of_improvement(a[:, None], b[:, None]))
 
 
 TABLE_ROWS = [make_row("he-k1", 0, 0.5, 10), make_row("gcrl-k1", 0, 0.9, 4), make_row("he-k1", 1, 0.7, 14),
