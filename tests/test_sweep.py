@@ -1,7 +1,7 @@
 """`mjx-emp sweep` and `mjx-emp report` on the committed smoke spec: a sweep completes, a second
 call trains nothing, a sweep stopped by SIGTERM says so in one line and called again (through
-submitit's local executor) ends with the rows of one never stopped, `mjx-emp eval` of a sweep's run gives its
-row again, the report prints IQM intervals, and bad specs are refused before anything trains."""
+submitit's local executor) ends with the rows of one never stopped, one stopped while one of its two workers
+is idle still ends, `mjx-emp eval` of a sweep's run gives its row again, the report prints IQM intervals, and bad specs are refused before anything trains."""
 
 from __future__ import annotations
 
